@@ -1,0 +1,2 @@
+//! `dex-policy`: the compact policy file format.
+#![no_std]
