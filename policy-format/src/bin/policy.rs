@@ -1,1 +1,124 @@
-fn main() {}
+//! `policy`: inspect and verify policy files.
+//!
+//! `policy inspect FILE` prints metadata, sizes and the checksum; `policy verify FILE` checks the file
+//! and exits non-zero with the reason when it is not valid.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use dex_policy::{Activation, PolicyView};
+
+#[derive(Parser)]
+#[command(
+    name = "policy",
+    version,
+    about = "Inspect and verify dexterous-stack policy files"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the metadata, layouts, network, sizes and checksum of a policy file.
+    Inspect {
+        /// Policy file (.dxpl).
+        file: PathBuf,
+    },
+    /// Check a policy file; exit status 0 when valid, 1 with the reason when not.
+    Verify {
+        /// Policy file (.dxpl).
+        file: PathBuf,
+    },
+}
+
+fn read(path: &PathBuf) -> anyhow::Result<Vec<u8>> {
+    std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+fn activation(a: Activation) -> &'static str {
+    match a {
+        Activation::Relu => "relu",
+        Activation::Tanh => "tanh",
+        Activation::Linear => "linear",
+    }
+}
+
+fn inspect(bytes: &[u8]) -> anyhow::Result<()> {
+    let view = PolicyView::decode(bytes).context("invalid policy file")?;
+    let h = view.header();
+    let b = view.body();
+    println!("format version  {}", h.version);
+    println!("file size       {} bytes", bytes.len());
+    println!("crc32           {:#010x}", h.crc);
+    println!("layout hash     {:#010x}", h.layout_hash);
+    println!("task            {:?}", b.task);
+    println!("control period  {} us", b.control_period_us);
+    println!(
+        "observation     {} values, clip +-{}",
+        b.obs_dim(),
+        b.obs_clip
+    );
+    for f in &b.observation {
+        println!("  {:<24} {}", f.name, f.size);
+    }
+    println!("action          {} joints", b.act_dim());
+    for j in &b.action {
+        println!(
+            "  {:<24} scale {:<8} limits [{}, {}]",
+            j.name, j.scale, j.min, j.max
+        );
+    }
+    let mut chain = b.obs_dim().to_string();
+    for l in &b.layers {
+        chain.push_str(&format!(" -> {} {}", l.outputs, activation(l.activation)));
+    }
+    println!("network         {chain}");
+    let values = view.values().len();
+    let normalisation = 2 * b.obs_dim();
+    println!(
+        "stored values   {values} f32 ({} bytes): {} parameters + {normalisation} normalisation",
+        values * 4,
+        values - normalisation
+    );
+    let p = &b.provenance;
+    println!("trainer         {}", p.trainer_version);
+    println!("seed            {}", p.seed);
+    println!("transitions     {}", p.transitions);
+    match p.success_rate {
+        Some(rate) => println!(
+            "success rate    {:.1}% over {} episodes",
+            rate * 100.0,
+            p.eval_episodes
+        ),
+        None => println!("success rate    not evaluated"),
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Inspect { file } => inspect(&read(&file)?),
+        Command::Verify { file } => {
+            let bytes = read(&file)?;
+            match PolicyView::decode(&bytes) {
+                Ok(view) => {
+                    println!(
+                        "OK: {} ({} bytes, crc32 {:#010x})",
+                        file.display(),
+                        bytes.len(),
+                        view.header().crc
+                    );
+                    Ok(())
+                }
+                Err(e) => {
+                    eprintln!("INVALID: {}: {e}", file.display());
+                    std::process::exit(1);
+                }
+            }
+        }
+    }
+}
