@@ -1,4 +1,5 @@
 //! One test per way a policy file can be wrong, each expecting its own typed error.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use dex_policy::synth::{golden_small_spec, synth_parts};
 use dex_policy::{

@@ -1,4 +1,5 @@
 //! The committed golden file: exact bytes, decoded contents, and rejection of every single-bit flip.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use dex_policy::{Activation, FormatError, PolicyView, Task, synth};
 

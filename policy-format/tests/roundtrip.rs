@@ -1,4 +1,5 @@
 //! Encode/decode round trips over generated policies, and decoder robustness on arbitrary bytes.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use dex_policy::synth::{SynthSpec, synth_parts};
 use dex_policy::{Activation, PolicyView, Task, encode_into, encode_to_vec};

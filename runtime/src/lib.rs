@@ -1,5 +1,32 @@
 //! `dex-runtime`: the controller that runs an exported policy at 20 Hz behind CAN frames.
+//!
+//! - [`mlp::Mlp`] evaluates a policy file's network with compile-time capacity, borrowing the
+//!   weights from the file, bit-identically on every target.
+//! - [`controller::Controller`] wraps it in a CANopen-style state machine with a watchdog: it takes
+//!   frames ([`embedded_can::Frame`]) and time ([`clock::Clock`]) and returns frames to send.
+//! - [`can`] holds the frame type, AUTOSAR-E2E-profile-11-style protection and the cell's messages;
+//!   [`interface`] the observation and action layout they carry.
+//!
+//! `#![no_std]`, no `alloc`, no heap: every buffer has a size fixed at compile time, and one call
+//! does bounded work (at most one forward pass). It does not drive a CAN peripheral: a board
+//! support crate moves frames between the peripheral and the controller.
 #![no_std]
 #![deny(missing_docs)]
 
+#[cfg(feature = "std")]
+extern crate std;
+
+pub mod can;
+pub mod clock;
+pub mod controller;
+pub mod error;
 pub mod interface;
+pub mod mlp;
+pub mod observation;
+#[cfg(feature = "std")]
+pub mod testkit;
+
+pub use clock::{Clock, MockClock};
+pub use controller::{Controller, ControllerConfig, Diagnostics, FaultCode, Outbox, State};
+pub use error::{EvalError, LoadError};
+pub use mlp::Mlp;

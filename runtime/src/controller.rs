@@ -1,0 +1,528 @@
+//! The 20 Hz controller: a CANopen-style state machine around the policy evaluator.
+//!
+//! Frames come in through [`Controller::on_frame`], time through [`Controller::poll`] and a
+//! [`Clock`]. Both return the frames to send in an [`Outbox`] (fixed capacity, no heap). An
+//! observation is evaluated as soon as its last frame arrives (so latency is one forward pass);
+//! `poll` runs the cycle bookkeeping once per period: watchdog, heartbeat, and the safe action in
+//! every state but operational.
+
+use dex_policy::{FORMAT_VERSION, PolicyView};
+use heapless::Vec;
+
+use crate::can::e2e::E2eSender;
+use crate::can::frame::CanFrame;
+use crate::can::messages::{
+    ACTION_FRAMES, NMT_ID, NmtCommand, OBS_FRAMES, emcy_frame, encode_action, heartbeat_frame,
+    policy_info_frame,
+};
+use crate::clock::Clock;
+use crate::error::LoadError;
+use crate::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS};
+use crate::mlp::Mlp;
+use crate::observation::{FrameOutcome, ObservationAssembler, ObservationFault, check_observation};
+
+/// Frames to send after one call; 8 slots, and no call produces more than 6.
+pub type Outbox = Vec<CanFrame, 8>;
+
+/// Controller states, in CANopen's spirit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    /// Just powered or reset; becomes pre-operational at the first poll.
+    Boot,
+    /// Configured, not controlling: policies may be loaded; sends the safe action.
+    PreOperational,
+    /// Evaluating the policy on every complete observation.
+    Operational,
+    /// Stopped by command or by a fault: sends the safe action; NMT start resumes.
+    SafeStop,
+    /// Unrecoverable without NMT reset: sends the safe action.
+    Fault,
+}
+
+impl State {
+    /// Code in the heartbeat's third byte.
+    pub const fn code(self) -> u8 {
+        match self {
+            State::Boot => 0,
+            State::PreOperational => 1,
+            State::Operational => 2,
+            State::SafeStop => 3,
+            State::Fault => 4,
+        }
+    }
+
+    /// CANopen NMT state byte (first heartbeat byte).
+    pub const fn canopen(self) -> u8 {
+        match self {
+            State::Boot => 0x00,
+            State::PreOperational => 0x7F,
+            State::Operational => 0x05,
+            State::SafeStop | State::Fault => 0x04,
+        }
+    }
+}
+
+/// Why the controller left operational (reported in heartbeat and emergency frames).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultCode {
+    /// No fault.
+    None,
+    /// No complete observation for longer than the watchdog allows.
+    ObservationTimeout,
+    /// An observation value was not finite.
+    ObservationNonFinite,
+    /// An observation value was out of its plausible range.
+    ObservationOutOfRange,
+    /// The network produced a non-finite output.
+    ActionNonFinite,
+    /// Start was commanded with no policy loaded.
+    NoPolicy,
+}
+
+impl FaultCode {
+    /// Code in heartbeat and emergency frames.
+    pub const fn code(self) -> u8 {
+        match self {
+            FaultCode::None => 0,
+            FaultCode::ObservationTimeout => 1,
+            FaultCode::ObservationNonFinite => 2,
+            FaultCode::ObservationOutOfRange => 3,
+            FaultCode::ActionNonFinite => 4,
+            FaultCode::NoPolicy => 5,
+        }
+    }
+
+    /// CANopen-style emergency error code (0x8250 is CANopen's RPDO timeout; 0xFFxx are
+    /// manufacturer-specific; 0x0000 is "error reset").
+    pub const fn emcy_code(self) -> u16 {
+        match self {
+            FaultCode::None => 0x0000,
+            FaultCode::ObservationTimeout => 0x8250,
+            FaultCode::ObservationNonFinite => 0xFF02,
+            FaultCode::ObservationOutOfRange => 0xFF03,
+            FaultCode::ActionNonFinite => 0xFF04,
+            FaultCode::NoPolicy => 0xFF05,
+        }
+    }
+}
+
+/// Controller settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ControllerConfig {
+    /// CANopen node id (1..=127).
+    pub node_id: u8,
+    /// Control period in microseconds.
+    pub period_us: u32,
+    /// Safe-stop when the newest complete observation is older than this many periods.
+    pub watchdog_cycles: u32,
+    /// Heartbeat every this many periods (and on every state change).
+    pub heartbeat_cycles: u32,
+    /// Largest accepted alive-counter jump on observation frames (1: no frame may be lost).
+    pub e2e_max_delta: u8,
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        ControllerConfig {
+            node_id: 0x10,
+            period_us: CONTROL_PERIOD_US,
+            watchdog_cycles: 3,
+            heartbeat_cycles: 10,
+            e2e_max_delta: 1,
+        }
+    }
+}
+
+/// Counters for diagnosis; they saturate instead of wrapping.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Diagnostics {
+    /// Control cycles run.
+    pub cycles: u64,
+    /// Cycles skipped because `poll` came late.
+    pub missed_cycles: u64,
+    /// Policy evaluations.
+    pub evaluations: u64,
+    /// Cycles with more than one evaluation.
+    pub overruns: u64,
+    /// Frames dropped for a wrong CRC, a bad counter or a wrong length.
+    pub e2e_errors: u64,
+    /// Frames dropped as repetitions.
+    pub repeated: u64,
+    /// Frames dropped for a counter jump.
+    pub wrong_sequence: u64,
+    /// Observations abandoned incomplete.
+    pub incomplete_observations: u64,
+    /// Cycles in which no observation frame arrived.
+    pub no_new_data: u64,
+    /// Frames with identifiers this controller does not use.
+    pub ignored_frames: u64,
+}
+
+/// Identity of the loaded policy, reported in the policy-info frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PolicyInfo {
+    /// Layout hash from the file header.
+    pub layout_hash: u32,
+    /// Format version of the file.
+    pub format_version: u16,
+    /// Task code (order of [`dex_policy::Task`]).
+    pub task: u8,
+}
+
+/// The controller; `WIDTH` is the evaluator's compile-time capacity (widest layer).
+#[derive(Debug, Clone)]
+pub struct Controller<'p, const WIDTH: usize> {
+    cfg: ControllerConfig,
+    state: State,
+    fault: FaultCode,
+    policy: Option<Mlp<'p, WIDTH>>,
+    info: Option<PolicyInfo>,
+    assembler: ObservationAssembler,
+    obs: [f32; OBS_DIM],
+    last_obs_us: u64,
+    frames_this_cycle: bool,
+    evaluations_this_cycle: u32,
+    action: [f32; ACT_DIM],
+    action_tx: [E2eSender; ACTION_FRAMES],
+    emcy_tx: E2eSender,
+    info_tx: E2eSender,
+    own_sample: u8,
+    heartbeat_counter: u8,
+    next_tick_us: Option<u64>,
+    cycles_since_heartbeat: u32,
+    announce: bool,
+    diag: Diagnostics,
+}
+
+impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
+    /// A controller in [`State::Boot`] with no policy.
+    pub fn new(cfg: ControllerConfig) -> Self {
+        Controller {
+            cfg,
+            state: State::Boot,
+            fault: FaultCode::None,
+            policy: None,
+            info: None,
+            assembler: ObservationAssembler::new(cfg.e2e_max_delta),
+            obs: [0.0; OBS_DIM],
+            last_obs_us: 0,
+            frames_this_cycle: false,
+            evaluations_this_cycle: 0,
+            action: [0.0; ACT_DIM],
+            action_tx: [E2eSender::default(); ACTION_FRAMES],
+            emcy_tx: E2eSender::default(),
+            info_tx: E2eSender::default(),
+            own_sample: 0,
+            heartbeat_counter: 0,
+            next_tick_us: None,
+            cycles_since_heartbeat: 0,
+            announce: false,
+            diag: Diagnostics::default(),
+        }
+    }
+
+    /// Current state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Latched fault code.
+    pub fn fault(&self) -> FaultCode {
+        self.fault
+    }
+
+    /// Diagnostic counters.
+    pub fn diagnostics(&self) -> &Diagnostics {
+        &self.diag
+    }
+
+    /// The last action sent (zero velocity outside operational).
+    pub fn last_action(&self) -> &[f32; ACT_DIM] {
+        &self.action
+    }
+
+    /// The newest complete observation received.
+    pub fn last_observation(&self) -> &[f32; OBS_DIM] {
+        &self.obs
+    }
+
+    /// Identity of the loaded policy.
+    pub fn policy_info(&self) -> Option<PolicyInfo> {
+        self.info
+    }
+
+    /// Loads or swaps the policy. Refused while operational; refused (leaving the current policy
+    /// active) when the file does not fit this controller's capacity, layout or period.
+    pub fn load_policy(&mut self, view: &PolicyView<'p>) -> Result<(), LoadError> {
+        if self.state == State::Operational {
+            return Err(LoadError::Operational);
+        }
+        view.check_layout(
+            OBSERVATION_FIELDS.iter().map(|f| (f.name, f.size)),
+            ACTION_JOINTS.iter().map(|j| j.name),
+        )?;
+        let period = view.body().control_period_us;
+        if period != self.cfg.period_us {
+            return Err(LoadError::ControlPeriod {
+                policy_us: period,
+                controller_us: self.cfg.period_us,
+            });
+        }
+        let mlp = Mlp::new(view)?;
+        self.policy = Some(mlp);
+        self.info = Some(PolicyInfo {
+            layout_hash: view.header().layout_hash,
+            format_version: view.header().version,
+            task: view.body().task as u8,
+        });
+        self.announce = true;
+        Ok(())
+    }
+
+    /// Handles one received frame; returns the frames to send (actions when this frame completed an
+    /// observation while operational, an emergency when it caused a fault).
+    pub fn on_frame(&mut self, frame: &impl embedded_can::Frame, clock: &impl Clock) -> Outbox {
+        let mut out = Outbox::new();
+        let id = match frame.id() {
+            embedded_can::Id::Standard(s) if !frame.is_remote_frame() => s.as_raw(),
+            _ => {
+                self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
+                return out;
+            }
+        };
+        if id == NMT_ID {
+            self.on_nmt(frame.data(), clock, &mut out);
+        } else if let Some(k) = ObservationAssembler::frame_index(id) {
+            self.on_observation_frame(k, frame.data(), clock, &mut out);
+        } else {
+            self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
+        }
+        out
+    }
+
+    /// Runs the periodic part when a period boundary has passed: watchdog, heartbeat and the safe
+    /// action outside operational. Call it at least once per period; calling it more often is fine.
+    pub fn poll(&mut self, clock: &impl Clock) -> Outbox {
+        let mut out = Outbox::new();
+        let now = clock.now_us();
+        let period = u64::from(self.cfg.period_us.max(1));
+        let Some(next) = self.next_tick_us else {
+            self.next_tick_us = Some(now.saturating_add(period));
+            self.enter(State::PreOperational, &mut out);
+            return out;
+        };
+        if now < next {
+            return out;
+        }
+        let late = (now - next) / period;
+        self.diag.missed_cycles = self.diag.missed_cycles.saturating_add(late);
+        self.next_tick_us = Some(next.saturating_add((late + 1).saturating_mul(period)));
+        self.diag.cycles = self.diag.cycles.saturating_add(1);
+        if !self.frames_this_cycle {
+            self.diag.no_new_data = self.diag.no_new_data.saturating_add(1);
+        }
+        if self.evaluations_this_cycle > 1 {
+            self.diag.overruns = self.diag.overruns.saturating_add(1);
+        }
+        self.frames_this_cycle = false;
+        self.evaluations_this_cycle = 0;
+
+        match self.state {
+            State::Boot => self.enter(State::PreOperational, &mut out),
+            State::Operational => {
+                let limit = u64::from(self.cfg.watchdog_cycles).saturating_mul(period);
+                if now.saturating_sub(self.last_obs_us) > limit {
+                    self.safe_stop(FaultCode::ObservationTimeout, &mut out);
+                }
+            }
+            State::PreOperational | State::SafeStop | State::Fault => {
+                self.send_safe_action(&mut out)
+            }
+        }
+        self.cycles_since_heartbeat += 1;
+        if self.cycles_since_heartbeat >= self.cfg.heartbeat_cycles {
+            self.push_heartbeat(&mut out);
+        }
+        if self.announce {
+            self.announce = false;
+            self.push_policy_info(&mut out);
+        }
+        out
+    }
+
+    fn on_nmt(&mut self, data: &[u8], clock: &impl Clock, out: &mut Outbox) {
+        let (Some(&code), Some(&node)) = (data.first(), data.get(1)) else {
+            self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
+            return;
+        };
+        if node != 0 && node != self.cfg.node_id {
+            return;
+        }
+        let Some(command) = NmtCommand::from_code(code) else {
+            self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
+            return;
+        };
+        match (command, self.state) {
+            (NmtCommand::Start, State::PreOperational | State::SafeStop) => {
+                if self.policy.is_none() {
+                    self.fault = FaultCode::NoPolicy;
+                    self.push_emcy(out);
+                    return;
+                }
+                let had_fault = self.fault != FaultCode::None;
+                self.fault = FaultCode::None;
+                if had_fault {
+                    self.push_emcy(out);
+                }
+                self.last_obs_us = clock.now_us();
+                self.enter(State::Operational, out);
+            }
+            (NmtCommand::Stop, State::PreOperational | State::Operational) => {
+                self.enter(State::SafeStop, out);
+                self.send_safe_action(out);
+            }
+            (NmtCommand::EnterPreOperational, State::Operational | State::SafeStop) => {
+                self.enter(State::PreOperational, out);
+                self.send_safe_action(out);
+            }
+            (NmtCommand::ResetNode | NmtCommand::ResetCommunication, _) => {
+                if command == NmtCommand::ResetCommunication {
+                    self.action_tx = [E2eSender::default(); ACTION_FRAMES];
+                    self.emcy_tx = E2eSender::default();
+                    self.info_tx = E2eSender::default();
+                }
+                self.assembler.reset();
+                self.fault = FaultCode::None;
+                self.state = State::Boot;
+                self.send_safe_action(out);
+            }
+            _ => {}
+        }
+    }
+
+    fn on_observation_frame(
+        &mut self,
+        k: usize,
+        data: &[u8],
+        clock: &impl Clock,
+        out: &mut Outbox,
+    ) {
+        self.frames_this_cycle = true;
+        let abandoned = self.assembler.abandoned;
+        let outcome = self.assembler.push(k, data);
+        if self.assembler.abandoned != abandoned {
+            self.diag.incomplete_observations = self.diag.incomplete_observations.saturating_add(1);
+        }
+        let sample = match outcome {
+            FrameOutcome::Stored => return,
+            FrameOutcome::Complete { sample } => sample,
+            FrameOutcome::Malformed => {
+                self.diag.e2e_errors = self.diag.e2e_errors.saturating_add(1);
+                return;
+            }
+            FrameOutcome::Rejected(status) => {
+                let counter = match status {
+                    crate::can::E2eStatus::Repeated => &mut self.diag.repeated,
+                    crate::can::E2eStatus::WrongSequence => &mut self.diag.wrong_sequence,
+                    _ => &mut self.diag.e2e_errors,
+                };
+                *counter = counter.saturating_add(1);
+                return;
+            }
+        };
+        self.obs = *self.assembler.values();
+        self.last_obs_us = clock.now_us();
+        if self.state != State::Operational {
+            return;
+        }
+        if let Err(fault) = check_observation(&self.obs) {
+            let code = match fault {
+                ObservationFault::NonFinite { .. } => FaultCode::ObservationNonFinite,
+                ObservationFault::OutOfRange { .. } => FaultCode::ObservationOutOfRange,
+            };
+            self.safe_stop(code, out);
+            return;
+        }
+        let Some(policy) = self.policy.as_mut() else {
+            self.safe_stop(FaultCode::NoPolicy, out);
+            return;
+        };
+        self.evaluations_this_cycle += 1;
+        self.diag.evaluations = self.diag.evaluations.saturating_add(1);
+        let mut action = [0.0f32; ACT_DIM];
+        match policy.act(&self.obs, &mut action) {
+            Ok(()) => {
+                self.action = action;
+                for f in encode_action(&self.action, sample, &mut self.action_tx) {
+                    let _ = out.push(f);
+                }
+            }
+            Err(_) => {
+                self.fault = FaultCode::ActionNonFinite;
+                self.enter(State::Fault, out);
+                self.push_emcy(out);
+                self.send_safe_action(out);
+            }
+        }
+    }
+
+    fn safe_stop(&mut self, fault: FaultCode, out: &mut Outbox) {
+        self.fault = fault;
+        self.enter(State::SafeStop, out);
+        self.push_emcy(out);
+        self.send_safe_action(out);
+    }
+
+    fn enter(&mut self, state: State, out: &mut Outbox) {
+        if self.state != state {
+            self.state = state;
+            self.push_heartbeat(out);
+            if matches!(state, State::PreOperational | State::Operational) {
+                self.announce = true;
+            }
+        }
+    }
+
+    fn send_safe_action(&mut self, out: &mut Outbox) {
+        self.action = [0.0; ACT_DIM];
+        self.own_sample = self.own_sample.wrapping_add(1) & 0x0F;
+        for f in encode_action(&self.action, self.own_sample, &mut self.action_tx) {
+            let _ = out.push(f);
+        }
+    }
+
+    fn push_heartbeat(&mut self, out: &mut Outbox) {
+        self.cycles_since_heartbeat = 0;
+        let f = heartbeat_frame(
+            self.cfg.node_id,
+            self.state.canopen(),
+            self.heartbeat_counter,
+            self.state.code(),
+            self.fault.code(),
+        );
+        self.heartbeat_counter = self.heartbeat_counter.wrapping_add(1);
+        let _ = out.push(f);
+    }
+
+    fn push_emcy(&mut self, out: &mut Outbox) {
+        let f = emcy_frame(
+            self.cfg.node_id,
+            self.fault.emcy_code(),
+            self.fault.code(),
+            self.state.code(),
+            &mut self.emcy_tx,
+        );
+        let _ = out.push(f);
+    }
+
+    fn push_policy_info(&mut self, out: &mut Outbox) {
+        let (hash, version, task) = match self.info {
+            Some(i) => (i.layout_hash, i.format_version as u8, i.task),
+            None => (0, FORMAT_VERSION as u8, 0xFF),
+        };
+        let _ = out.push(policy_info_frame(hash, version, task, &mut self.info_tx));
+    }
+}
+
+/// Number of frames the plant sends per cycle.
+pub const OBS_FRAMES_PER_CYCLE: usize = OBS_FRAMES;

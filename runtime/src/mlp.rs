@@ -1,0 +1,187 @@
+//! The policy evaluator: observation normalisation, a dense MLP and action scaling, with capacity
+//! fixed at compile time and the weights borrowed from the policy file (flash on a controller).
+//!
+//! Determinism: every output is `bias + w[0]*x[0] + w[1]*x[1] + ...` in that order ("axpy" order:
+//! for each input, its weight row is added to all outputs). Rust never fuses a multiply and an add
+//! unless `mul_add` is called, and `tanh` comes from the pure-Rust `libm`, so results are
+//! bit-identical on every target. The loop over outputs vectorises without changing any output's
+//! summation order.
+
+use dex_policy::{Activation, Capacity, FormatError, MAX_ACTIONS, MAX_LAYERS, PolicyView};
+use heapless::Vec;
+
+use crate::error::EvalError;
+
+/// One dense layer, as offsets into the stored values.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Layer {
+    inputs: usize,
+    outputs: usize,
+    weights: usize,
+    biases: usize,
+    activation: Activation,
+}
+
+/// How one network output becomes a joint command: `clamp(y * scale, min, max)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct JointMap {
+    scale: f32,
+    min: f32,
+    max: f32,
+}
+
+/// A loaded policy with its scratch buffers; `WIDTH` is the widest layer (or input) it accepts.
+///
+/// Holds two `[f32; WIDTH]` activations buffers and borrows the weights: a 48-256-256-9 policy
+/// needs 2 kB of RAM here while its 323 kB of weights stay in the file (flash).
+#[derive(Debug, Clone)]
+pub struct Mlp<'a, const WIDTH: usize> {
+    values: &'a [f32],
+    layers: Vec<Layer, MAX_LAYERS>,
+    joints: Vec<JointMap, MAX_ACTIONS>,
+    obs_dim: usize,
+    clip: f32,
+    front: [f32; WIDTH],
+    back: [f32; WIDTH],
+}
+
+impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
+    /// This evaluator's capacity.
+    pub const CAPACITY: Capacity = Capacity {
+        max_obs: WIDTH,
+        max_act: if WIDTH < MAX_ACTIONS {
+            WIDTH
+        } else {
+            MAX_ACTIONS
+        },
+        max_width: WIDTH,
+        max_layers: MAX_LAYERS,
+    };
+
+    /// Builds an evaluator over a decoded policy, borrowing its values (which must be 4-byte aligned
+    /// in memory; see [`dex_policy::Values::as_slice`]).
+    pub fn new(view: &PolicyView<'a>) -> Result<Self, FormatError> {
+        view.check_capacity(&Self::CAPACITY)?;
+        let values = view.values().as_slice()?;
+        let body = view.body();
+        let mut layers = Vec::new();
+        for (l, spec) in view.layers().zip(body.layers.iter()) {
+            layers
+                .push(Layer {
+                    inputs: l.inputs,
+                    outputs: l.outputs,
+                    weights: l.weights,
+                    biases: l.biases,
+                    activation: spec.activation,
+                })
+                .map_err(|_| FormatError::ExceedsCapacity {
+                    what: dex_policy::CapacityItem::Layers,
+                    value: body.layers.len(),
+                    max: MAX_LAYERS,
+                })?;
+        }
+        let mut joints = Vec::new();
+        for j in &body.action {
+            joints
+                .push(JointMap {
+                    scale: j.scale,
+                    min: j.min,
+                    max: j.max,
+                })
+                .map_err(|_| FormatError::ExceedsCapacity {
+                    what: dex_policy::CapacityItem::Action,
+                    value: body.action.len(),
+                    max: MAX_ACTIONS,
+                })?;
+        }
+        Ok(Mlp {
+            values,
+            layers,
+            joints,
+            obs_dim: body.obs_dim(),
+            clip: body.obs_clip,
+            front: [0.0; WIDTH],
+            back: [0.0; WIDTH],
+        })
+    }
+
+    /// Observation dimension the policy expects.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+
+    /// Number of joint commands the policy produces.
+    pub fn act_dim(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Evaluates the policy: normalises and clips `obs`, runs the network and writes one clamped
+    /// joint command per joint into `action`. Work is bounded by the policy's size, which is bounded
+    /// by `WIDTH` and [`MAX_LAYERS`].
+    pub fn act(&mut self, obs: &[f32], action: &mut [f32]) -> Result<(), EvalError> {
+        if obs.len() != self.obs_dim {
+            return Err(EvalError::ObservationLength {
+                expected: self.obs_dim,
+                got: obs.len(),
+            });
+        }
+        if action.len() != self.joints.len() {
+            return Err(EvalError::ActionLength {
+                expected: self.joints.len(),
+                got: action.len(),
+            });
+        }
+        let n = self.obs_dim;
+        let (mean, rest) = self.values.split_at(n);
+        let scale = &rest[..n];
+        for (i, x) in obs.iter().enumerate() {
+            if !x.is_finite() {
+                return Err(EvalError::NonFiniteObservation { index: i });
+            }
+            let z = (x - mean[i]) / scale[i];
+            self.front[i] = z.clamp(-self.clip, self.clip);
+        }
+        for layer in &self.layers {
+            let w = &self.values[layer.weights..layer.biases];
+            let b = &self.values[layer.biases..layer.biases + layer.outputs];
+            dense(
+                &self.front[..layer.inputs],
+                w,
+                b,
+                &mut self.back[..layer.outputs],
+            );
+            activate(layer.activation, &mut self.back[..layer.outputs]);
+            core::mem::swap(&mut self.front, &mut self.back);
+        }
+        for (j, (out, map)) in action.iter_mut().zip(&self.joints).enumerate() {
+            let y = self.front[j];
+            if !y.is_finite() {
+                return Err(EvalError::NonFiniteAction { index: j });
+            }
+            *out = (y * map.scale).clamp(map.min, map.max);
+        }
+        Ok(())
+    }
+}
+
+/// `out = bias + sum_i w[i] * input[i]` with weights input-major (`w[i * outputs + j]`).
+#[inline]
+fn dense(input: &[f32], w: &[f32], bias: &[f32], out: &mut [f32]) {
+    out.copy_from_slice(bias);
+    let outputs = out.len();
+    for (x, row) in input.iter().zip(w.chunks_exact(outputs)) {
+        for (o, wv) in out.iter_mut().zip(row) {
+            *o += wv * x;
+        }
+    }
+}
+
+fn activate(activation: Activation, v: &mut [f32]) {
+    match activation {
+        Activation::Relu => v
+            .iter_mut()
+            .for_each(|x| *x = if *x > 0.0 { *x } else { 0.0 }),
+        Activation::Tanh => v.iter_mut().for_each(|x| *x = libm::tanhf(*x)),
+        Activation::Linear => {}
+    }
+}

@@ -1,0 +1,133 @@
+//! Assembling one observation from its frames, never mixing two cycles, and checking it.
+
+use crate::can::e2e::{E2eReceiver, E2eStatus};
+use crate::can::messages::{
+    OBS_BASE_ID, OBS_FRAMES, SIGNALS_PER_FRAME, from_raw, split_signal_frame,
+};
+use crate::interface::{OBS_DIM, Quantity, quantity_of};
+
+/// What one observation frame did to the assembly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameOutcome {
+    /// Stored; the observation is not complete yet.
+    Stored,
+    /// Stored and the observation of this sample is now complete.
+    Complete {
+        /// Sample nibble of the completed observation.
+        sample: u8,
+    },
+    /// Dropped by the end-to-end check.
+    Rejected(E2eStatus),
+    /// Dropped: wrong length.
+    Malformed,
+}
+
+/// Why a complete observation is unusable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ObservationFault {
+    /// A value was reported "not available" (non-finite at the plant).
+    NonFinite {
+        /// Index of the value.
+        index: usize,
+    },
+    /// A value lies beyond its quantity's plausible range.
+    OutOfRange {
+        /// Index of the value.
+        index: usize,
+    },
+}
+
+/// Collects observation frames of one sample at a time.
+#[derive(Debug, Clone)]
+pub struct ObservationAssembler {
+    receivers: [E2eReceiver; OBS_FRAMES],
+    sample: Option<u8>,
+    received: u32,
+    values: [f32; OBS_DIM],
+    /// Observations abandoned because frames of a newer sample arrived before they completed.
+    pub abandoned: u32,
+}
+
+const ALL_FRAMES: u32 = (1u32 << OBS_FRAMES) - 1;
+
+impl ObservationAssembler {
+    /// An empty assembler whose end-to-end receivers accept counter jumps up to `max_delta`.
+    pub fn new(max_delta: u8) -> Self {
+        ObservationAssembler {
+            receivers: [E2eReceiver::new(max_delta); OBS_FRAMES],
+            sample: None,
+            received: 0,
+            values: [0.0; OBS_DIM],
+            abandoned: 0,
+        }
+    }
+
+    /// Forgets the partial observation and the end-to-end counters.
+    pub fn reset(&mut self) {
+        self.receivers.iter_mut().for_each(E2eReceiver::reset);
+        self.sample = None;
+        self.received = 0;
+    }
+
+    /// Index of the observation frame with CAN id `id`, if it is one.
+    pub fn frame_index(id: u16) -> Option<usize> {
+        let k = usize::from(id.checked_sub(OBS_BASE_ID)?);
+        (k < OBS_FRAMES).then_some(k)
+    }
+
+    /// Takes observation frame `k`. Frames of a new sample abandon an incomplete older one.
+    pub fn push(&mut self, k: usize, data: &[u8]) -> FrameOutcome {
+        let Some(receiver) = self.receivers.get_mut(k) else {
+            return FrameOutcome::Malformed;
+        };
+        if data.len() != 8 {
+            return FrameOutcome::Malformed;
+        }
+        let status = receiver.check(OBS_BASE_ID + k as u16, data);
+        if status != E2eStatus::Ok {
+            return FrameOutcome::Rejected(status);
+        }
+        let Some((sample, raw)) = split_signal_frame(data) else {
+            return FrameOutcome::Malformed;
+        };
+        if self.sample != Some(sample) {
+            if self.received != 0 && self.received != ALL_FRAMES {
+                self.abandoned = self.abandoned.saturating_add(1);
+            }
+            self.sample = Some(sample);
+            self.received = 0;
+        }
+        for (s, r) in raw.iter().enumerate() {
+            let index = k * SIGNALS_PER_FRAME + s;
+            if let (Some(slot), Some(q)) = (self.values.get_mut(index), quantity_of(index)) {
+                *slot = from_raw(*r, q.lsb());
+            }
+        }
+        let before = self.received;
+        self.received |= 1 << k;
+        if self.received == ALL_FRAMES && before != ALL_FRAMES {
+            FrameOutcome::Complete { sample }
+        } else {
+            FrameOutcome::Stored
+        }
+    }
+
+    /// The assembled values (complete after [`FrameOutcome::Complete`]).
+    pub fn values(&self) -> &[f32; OBS_DIM] {
+        &self.values
+    }
+}
+
+/// Checks every value of an observation: finite and within its quantity's limit.
+pub fn check_observation(obs: &[f32; OBS_DIM]) -> Result<(), ObservationFault> {
+    for (index, v) in obs.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(ObservationFault::NonFinite { index });
+        }
+        let limit = quantity_of(index).map_or(0.0, Quantity::limit);
+        if v.abs() > limit {
+            return Err(ObservationFault::OutOfRange { index });
+        }
+    }
+    Ok(())
+}
