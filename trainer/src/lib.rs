@@ -1,3 +1,5 @@
 //! The simulated Jaco stacking world and the DPG-R / ADPG-R learner.
 //!
 //! Filled in by the environment and trainer issues; see `ARCHITECTURE.md`.
+
+pub mod learn;

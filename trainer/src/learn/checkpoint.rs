@@ -1,0 +1,307 @@
+//! Checkpoints of a whole [`Trainer`]: parameters, targets, Adam moments, generators, counters and
+//! replay buffers, so a resumed one-worker run continues bit-identically.
+//!
+//! Writing is atomic: the file is written to `PATH.tmp`, flushed to disk, then renamed over `PATH`, so a
+//! crash leaves either the previous checkpoint or the new one, never a torn file.
+//!
+//! Format (little-endian): magic `DEXLRN01`; the [`RunConfig`] as JSON (u64 length + bytes); observation
+//! and action sizes; counters; shared parameters and second moments; per worker its generator, first
+//! moments, transition count and optional replay; the optional shared replay; finally an FNV-1a 64 hash
+//! of everything before it. Arrays are a u64 count then the values. A replay stores only its filled rows.
+
+use super::LearnError;
+use super::adam::{AdamLocal, AdamShared};
+use super::ddpg::Networks;
+use super::replay::Replay;
+use super::rng::Rng;
+use super::trainer::{Counters, RunConfig, SharedState, Trainer, WorkerState};
+use std::io::Write;
+use std::path::Path;
+
+const MAGIC: &[u8; 8] = b"DEXLRN01";
+
+struct Enc {
+    buf: Vec<u8>,
+}
+
+impl Enc {
+    fn u64(&mut self, v: u64) {
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+    fn f64(&mut self, v: f64) {
+        self.u64(v.to_bits());
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        self.u64(b.len() as u64);
+        self.buf.extend_from_slice(b);
+    }
+    fn f32s(&mut self, v: &[f32]) {
+        self.u64(v.len() as u64);
+        self.buf.reserve(v.len() * 4);
+        for x in v {
+            self.buf.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    fn rng(&mut self, r: &Rng) {
+        let (s, spare) = r.state();
+        s.iter().for_each(|&w| self.u64(w));
+        self.u64(u64::from(spare.is_some()));
+        self.f64(spare.unwrap_or(0.0));
+    }
+    fn replay(&mut self, r: Option<&Replay>) {
+        let Some(r) = r else {
+            self.u64(0);
+            return;
+        };
+        self.u64(1);
+        let (next, len, fields) = r.raw();
+        self.u64(next as u64);
+        self.u64(len as u64);
+        for f in fields {
+            let per_row = f.len() / r.capacity();
+            self.f32s(&f[..len * per_row]);
+        }
+    }
+}
+
+struct Dec<'a> {
+    b: &'a [u8],
+}
+
+const TRUNC: LearnError = LearnError::BadCheckpoint("file ends early");
+
+impl Dec<'_> {
+    fn take(&mut self, n: usize) -> Result<&[u8], LearnError> {
+        if n > self.b.len() {
+            return Err(TRUNC);
+        }
+        let (h, t) = self.b.split_at(n);
+        self.b = t;
+        Ok(h)
+    }
+    fn u64(&mut self) -> Result<u64, LearnError> {
+        let mut a = [0u8; 8];
+        a.copy_from_slice(self.take(8)?);
+        Ok(u64::from_le_bytes(a))
+    }
+    fn usize(&mut self) -> Result<usize, LearnError> {
+        usize::try_from(self.u64()?).map_err(|_| TRUNC)
+    }
+    fn f64(&mut self) -> Result<f64, LearnError> {
+        Ok(f64::from_bits(self.u64()?))
+    }
+    fn bytes(&mut self) -> Result<&[u8], LearnError> {
+        let n = self.usize()?;
+        self.take(n)
+    }
+    fn f32s(&mut self) -> Result<Vec<f32>, LearnError> {
+        let n = self.usize()?;
+        let raw = self.take(n.checked_mul(4).ok_or(TRUNC)?)?;
+        Ok(raw
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
+    }
+    fn f32s_len(&mut self, len: usize) -> Result<Vec<f32>, LearnError> {
+        let v = self.f32s()?;
+        if v.len() == len {
+            Ok(v)
+        } else {
+            Err(LearnError::BadCheckpoint(
+                "array size does not match the configuration",
+            ))
+        }
+    }
+    fn rng(&mut self) -> Result<Rng, LearnError> {
+        let s = [self.u64()?, self.u64()?, self.u64()?, self.u64()?];
+        let has = self.u64()? != 0;
+        let spare = self.f64()?;
+        Ok(Rng::from_state(s, has.then_some(spare)))
+    }
+    fn replay(&mut self, slot: &mut Option<Replay>) -> Result<(), LearnError> {
+        let present = self.u64()? != 0;
+        let Some(r) = slot.as_mut() else {
+            return if present {
+                Err(LearnError::BadCheckpoint("unexpected replay buffer"))
+            } else {
+                Ok(())
+            };
+        };
+        if !present {
+            return Err(LearnError::BadCheckpoint("missing replay buffer"));
+        }
+        let next = self.usize()?;
+        let len = self.usize()?;
+        let cap = r.capacity();
+        let (_, _, shapes) = r.raw();
+        let per_row: Vec<usize> = shapes.iter().map(|f| f.len() / cap).collect();
+        let mut fields: [Vec<f32>; 5] = Default::default();
+        for (f, &pr) in fields.iter_mut().zip(&per_row) {
+            let mut v = self.f32s()?;
+            if v.len() != len.saturating_mul(pr) {
+                return Err(LearnError::BadCheckpoint("replay rows do not match"));
+            }
+            v.resize(cap * pr, 0.0);
+            *f = v;
+        }
+        if r.restore(next, len, fields) {
+            Ok(())
+        } else {
+            Err(LearnError::BadCheckpoint(
+                "replay does not fit the configured capacity",
+            ))
+        }
+    }
+}
+
+fn fnv1a(b: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &x in b {
+        h ^= u64::from(x);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnError + '_ {
+    move |source| LearnError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+impl Trainer {
+    /// Encodes the whole training state.
+    pub fn to_checkpoint_bytes(&self) -> Vec<u8> {
+        let mut e = Enc { buf: Vec::new() };
+        e.buf.extend_from_slice(MAGIC);
+        // RunConfig holds only numbers, booleans and enums: serialising it cannot fail.
+        e.bytes(&serde_json::to_vec(&self.cfg).unwrap_or_default());
+        e.u64(self.nets.obs_dim as u64);
+        e.u64(self.nets.act_dim as u64);
+        e.u64(self.counters.episodes);
+        e.u64(self.counters.evals);
+        e.f64(self.counters.wall_s);
+        let s = &self.shared;
+        for v in [&s.actor, &s.critic, &s.target_actor, &s.target_critic] {
+            e.f32s(v);
+        }
+        for a in [&s.actor_adam, &s.critic_adam] {
+            e.f32s(&a.v);
+            e.u64(a.t);
+        }
+        e.u64(s.updates);
+        e.u64(self.workers.len() as u64);
+        for w in &self.workers {
+            e.rng(&w.rng);
+            for m in [&w.actor_m, &w.critic_m] {
+                e.f32s(&m.m);
+                e.u64(m.t);
+            }
+            e.u64(w.transitions);
+            e.replay(w.replay.as_ref());
+        }
+        e.replay(self.shared_replay.as_ref());
+        let h = fnv1a(&e.buf);
+        e.u64(h);
+        e.buf
+    }
+
+    /// Decodes [`Trainer::to_checkpoint_bytes`].
+    pub fn from_checkpoint_bytes(bytes: &[u8]) -> Result<Trainer, LearnError> {
+        if bytes.len() < MAGIC.len() + 8 || &bytes[..8] != MAGIC {
+            return Err(LearnError::BadCheckpoint("not a learner checkpoint"));
+        }
+        let (body, tail) = bytes.split_at(bytes.len() - 8);
+        let mut h = [0u8; 8];
+        h.copy_from_slice(tail);
+        if fnv1a(body) != u64::from_le_bytes(h) {
+            return Err(LearnError::BadCheckpoint("hash mismatch (damaged file)"));
+        }
+        let mut d = Dec { b: &body[8..] };
+        let cfg: RunConfig = serde_json::from_slice(d.bytes()?)
+            .map_err(|_| LearnError::BadCheckpoint("configuration is not valid JSON"))?;
+        let obs_dim = d.usize()?;
+        let act_dim = d.usize()?;
+        let mut t = Trainer::new(cfg, obs_dim, act_dim)?;
+        t.counters = Counters {
+            episodes: d.u64()?,
+            evals: d.u64()?,
+            wall_s: d.f64()?,
+        };
+        let nets: &Networks = &t.nets;
+        let (na, nc) = (nets.actor.num_params(), nets.critic.num_params());
+        let mut s = SharedState {
+            actor: d.f32s_len(na)?,
+            critic: d.f32s_len(nc)?,
+            target_actor: d.f32s_len(na)?,
+            target_critic: d.f32s_len(nc)?,
+            ..SharedState::default()
+        };
+        s.actor_adam = AdamShared {
+            v: d.f32s_len(na)?,
+            t: d.u64()?,
+        };
+        s.critic_adam = AdamShared {
+            v: d.f32s_len(nc)?,
+            t: d.u64()?,
+        };
+        s.updates = d.u64()?;
+        t.shared = s;
+        if d.usize()? != t.workers.len() {
+            return Err(LearnError::BadCheckpoint("worker count does not match"));
+        }
+        for w in &mut t.workers {
+            let rng = d.rng()?;
+            let actor_m = AdamLocal {
+                m: d.f32s_len(na)?,
+                t: d.u64()?,
+            };
+            let critic_m = AdamLocal {
+                m: d.f32s_len(nc)?,
+                t: d.u64()?,
+            };
+            let transitions = d.u64()?;
+            d.replay(&mut w.replay)?;
+            *w = WorkerState {
+                rng,
+                actor_m,
+                critic_m,
+                replay: w.replay.take(),
+                transitions,
+            };
+        }
+        d.replay(&mut t.shared_replay)?;
+        if !d.b.is_empty() {
+            return Err(LearnError::BadCheckpoint("trailing bytes"));
+        }
+        Ok(t)
+    }
+
+    /// Writes a checkpoint atomically (`PATH.tmp`, fsync, rename).
+    pub fn save(&self, path: &Path) -> Result<(), LearnError> {
+        let bytes = self.to_checkpoint_bytes();
+        let mut tmp = path.as_os_str().to_owned();
+        tmp.push(".tmp");
+        let tmp = std::path::PathBuf::from(tmp);
+        {
+            let mut f = std::fs::File::create(&tmp).map_err(io_err(&tmp))?;
+            f.write_all(&bytes).map_err(io_err(&tmp))?;
+            f.sync_all().map_err(io_err(&tmp))?;
+        }
+        std::fs::rename(&tmp, path).map_err(io_err(path))?;
+        if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty())
+            && let Ok(d) = std::fs::File::open(dir)
+        {
+            // Best effort: makes the rename itself durable on file systems that need it.
+            let _ = d.sync_all();
+        }
+        Ok(())
+    }
+
+    /// Reads a checkpoint written by [`Trainer::save`].
+    pub fn load(path: &Path) -> Result<Trainer, LearnError> {
+        let bytes = std::fs::read(path).map_err(io_err(path))?;
+        Self::from_checkpoint_bytes(&bytes)
+    }
+}
