@@ -2,4 +2,5 @@
 //!
 //! Filled in by the environment and trainer issues; see `ARCHITECTURE.md`.
 
+pub mod env;
 pub mod learn;

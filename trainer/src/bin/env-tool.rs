@@ -1,0 +1,181 @@
+//! `env-tool`: run the scripted demonstrator and measure the Jaco environment's speed.
+//!
+//! ```text
+//! env-tool demo  --task grasp|stack|stack-in-hand|reach [--episodes 200] [--seed 0] [--verbose]
+//! env-tool bench [--threads 1] [--steps 3000] [--mode random|demo]
+//! ```
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use dex_trainer::env::{Demonstrator, EnvConfig, JacoEnv, Scene, Task};
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("env-tool: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+type BoxError = Box<dyn std::error::Error + Send + Sync>;
+
+fn flag<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<T, BoxError>
+where
+    T::Err: std::fmt::Display,
+{
+    match args.iter().position(|a| a == name) {
+        None => Ok(default),
+        Some(i) => {
+            let v = args
+                .get(i + 1)
+                .ok_or_else(|| format!("{name} needs a value"))?;
+            v.parse().map_err(|e| format!("{name} {v}: {e}").into())
+        }
+    }
+}
+
+fn run(args: &[String]) -> Result<(), BoxError> {
+    let cmd = args.first().map(String::as_str).unwrap_or("help");
+    match cmd {
+        "demo" => demo(args),
+        "bench" => bench(args),
+        _ => {
+            println!("usage: env-tool demo --task TASK [--episodes N] [--seed S] [--verbose]");
+            println!("       env-tool bench [--threads N] [--steps N] [--mode random|demo]");
+            Ok(())
+        }
+    }
+}
+
+fn demo(args: &[String]) -> Result<(), BoxError> {
+    let task: Task = flag(args, "--task", Task::Grasp)?;
+    let episodes: u64 = flag(args, "--episodes", 200)?;
+    let seed: u64 = flag(args, "--seed", 0)?;
+    let verbose = args.iter().any(|a| a == "--verbose");
+    let scene = Scene::load()?;
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
+    let start = Instant::now();
+    let mut successes = 0;
+    let mut steps = 0u64;
+    for ep in 0..episodes {
+        env.reset(seed + ep)?;
+        let mut demo = Demonstrator::new(task);
+        let mut ret = 0.0;
+        loop {
+            let a = demo.act(&env);
+            let out = env.step(&a)?;
+            steps += 1;
+            ret += out.reward;
+            if verbose {
+                let s = env.reward_state();
+                println!(
+                    "ep {ep} t {:3} {:?} pinch {:.3?} b1 {:.3?} off {:.4?} r {:.3}",
+                    env.steps_taken(),
+                    demo.phase(),
+                    s.pinch,
+                    s.brick1_pos,
+                    s.stack_offset(),
+                    out.reward
+                );
+            }
+            if out.done {
+                successes += u32::from(out.success);
+                if !out.success || verbose {
+                    println!(
+                        "episode {ep} (seed {}): success {} return {ret:.2} phase {:?}",
+                        seed + ep,
+                        out.success,
+                        demo.phase()
+                    );
+                }
+                break;
+            }
+        }
+    }
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "task {task:?}: {successes}/{episodes} successes ({:.1}%), {steps} control steps in {secs:.1} s ({:.0} steps/s incl. resets)",
+        100.0 * f64::from(successes) / episodes as f64,
+        steps as f64 / secs
+    );
+    Ok(())
+}
+
+fn bench(args: &[String]) -> Result<(), BoxError> {
+    let threads: usize = flag(args, "--threads", 1)?;
+    let steps: u64 = flag(args, "--steps", 3000)?;
+    let mode: String = flag(args, "--mode", "random".to_owned())?;
+    let demo_mode = match mode.as_str() {
+        "random" => false,
+        "demo" => true,
+        other => return Err(format!("unknown --mode {other}").into()),
+    };
+    let scene = Scene::load()?;
+    let start = Instant::now();
+    let results: Vec<Result<(u64, f64), String>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                let scene = &scene;
+                s.spawn(move || {
+                    bench_worker(scene, t as u64, steps, demo_mode).map_err(|e| e.to_string())
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|_| Err("worker panicked".into())))
+            .collect()
+    });
+    let wall = start.elapsed().as_secs_f64();
+    let mut total = 0;
+    let mut physics = 0.0;
+    for r in results {
+        let (n, p) = r?;
+        total += n;
+        physics += p;
+    }
+    println!(
+        "mode {mode} threads {threads}: {total} control steps in {wall:.2} s = {:.0} steps/s ({:.0} per thread), {:.1} simulated s per wall s, step-only time {:.1} us/step",
+        total as f64 / wall,
+        total as f64 / wall / threads as f64,
+        total as f64 * 0.05 / wall,
+        physics / total as f64 * 1e6
+    );
+    Ok(())
+}
+
+/// Steps `steps` control steps with resets every episode; returns steps and seconds spent in `step`.
+fn bench_worker(
+    scene: &Scene,
+    worker: u64,
+    steps: u64,
+    demo_mode: bool,
+) -> Result<(u64, f64), BoxError> {
+    let task = Task::Grasp;
+    let mut env = JacoEnv::new(scene, EnvConfig::new(task));
+    let mut rng = dex_trainer::env::rng::SeedRng::new(1000 + worker);
+    let mut demo = Demonstrator::new(task);
+    let mut ep = worker * 1_000_000;
+    env.reset(ep)?;
+    let mut in_step = 0.0;
+    for _ in 0..steps {
+        let a = if demo_mode {
+            demo.act(&env)
+        } else {
+            std::array::from_fn(|_| rng.uniform(-1.0, 1.0) as f32)
+        };
+        let t = Instant::now();
+        let out = env.step(&a)?;
+        in_step += t.elapsed().as_secs_f64();
+        if out.done {
+            ep += 1;
+            env.reset(ep)?;
+            demo.restart();
+        }
+    }
+    Ok((steps, in_step))
+}

@@ -1,0 +1,390 @@
+//! The environment: reset from a seed, step with a 9-D action, snapshot and restore.
+
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
+use mujoco_rs::prelude::*;
+
+use super::error::EnvError;
+use super::kinematics::{down_rotation, pinch_pose, solve_ik};
+use super::observation::{Observation, write_observation};
+use super::rewards::{Predicates, Reward, RewardState};
+use super::rng::SeedRng;
+use super::scene::{ARM_JOINTS, SUBSTEPS, Scene, SceneIds};
+use super::tasks::Task;
+
+/// The arm configuration that start-state inverse kinematics begins from: hand above the workspace,
+/// pointing down, elbow up.
+pub const NOMINAL_ARM_QPOS: [f64; ARM_JOINTS] = [0.0, 3.6, 1.3, -1.6, 1.6, 0.0];
+/// Half-width of the square (centred on the table origin) where bricks and the hand start, metres.
+pub const START_XY_RANGE: f64 = 0.1;
+/// Bricks start with their centres at least this far apart (their footprints' circumradius is 3.6 cm).
+pub const MIN_BRICK_SPACING: f64 = 0.08;
+/// Range of the finger joints' start positions (radians; fully open is 0.15, closed ~1.35).
+pub const START_FINGER_RANGE: (f64, f64) = (0.15, 0.9);
+/// Height of brick 1's origin below the pinch site when held (StackInHand start, demonstrator grasp).
+pub const GRASP_DEPTH: f64 = 0.012;
+const MAX_START_ATTEMPTS: u32 = 50;
+
+/// What an environment simulates: the task, the reward and the episode length.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EnvConfig {
+    /// The task (start-state distribution and success definition).
+    pub task: Task,
+    /// The reward function.
+    pub reward: Reward,
+    /// Control steps per episode; `done` is set when this many steps have been taken.
+    pub episode_steps: u32,
+}
+
+impl EnvConfig {
+    /// The task with its own reward and episode length.
+    pub const fn new(task: Task) -> Self {
+        Self {
+            task,
+            reward: task.default_reward(),
+            episode_steps: task.episode_steps(),
+        }
+    }
+
+    /// The same configuration with another reward.
+    pub const fn with_reward(mut self, reward: Reward) -> Self {
+        self.reward = reward;
+        self
+    }
+}
+
+impl Default for EnvConfig {
+    /// Stack with the sparse stack reward, 150 steps.
+    fn default() -> Self {
+        Self::new(Task::Stack)
+    }
+}
+
+/// The result of one control step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOutcome {
+    /// Observation after the step.
+    pub observation: Observation,
+    /// Reward of the state after the step.
+    pub reward: f32,
+    /// The episode's step budget is used up (a time limit, not a terminal state).
+    pub done: bool,
+    /// The task's success predicate holds after the step (evaluation reads it at the last step).
+    pub success: bool,
+    /// The reach, grasp and stack predicates after the step.
+    pub predicates: Predicates,
+}
+
+/// A full copy of the simulation state, cheap to restore (MuJoCo's `mjSTATE_INTEGRATION`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EnvSnapshot {
+    state: Box<[f64]>,
+    steps: u32,
+}
+
+impl EnvSnapshot {
+    /// Control steps taken in the episode when the snapshot was made.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+}
+
+const STATE_SPEC: u32 = MjtState::mjSTATE_INTEGRATION as u32;
+
+/// One Jaco stacking environment: its own `MjData` over the scene's shared model.
+///
+/// Actions are 9 numbers in [-1, 1] (arm joints 1-6, fingers 1-3); component `i` is clipped to [-1, 1]
+/// and multiplied by `ACTION_JOINTS[i].scale` to give the velocity actuator's target. Non-finite actions
+/// are rejected. Each step runs 25 physics steps of 2 ms.
+#[derive(Debug)]
+pub struct JacoEnv {
+    scene: Scene,
+    data: MjData<Arc<MjModel>>,
+    config: EnvConfig,
+    steps: u32,
+    observation: Observation,
+}
+
+impl JacoEnv {
+    /// A new environment for `config` over the shared `scene`; call [`JacoEnv::reset`] before stepping.
+    pub fn new(scene: &Scene, config: EnvConfig) -> Self {
+        let mut env = Self {
+            scene: scene.clone(),
+            data: scene.make_data(),
+            config,
+            steps: 0,
+            observation: [0.0; OBS_DIM],
+        };
+        env.data.forward();
+        env.refresh_observation();
+        env
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &EnvConfig {
+        &self.config
+    }
+
+    /// Changes task, reward or episode length; takes effect at the next reset.
+    pub fn set_config(&mut self, config: EnvConfig) {
+        self.config = config;
+    }
+
+    /// The scene this environment simulates.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The MuJoCo state (read-only), e.g. for the demonstrator or a renderer.
+    pub fn data(&self) -> &MjData<Arc<MjModel>> {
+        &self.data
+    }
+
+    /// Control steps taken since the last reset.
+    pub fn steps_taken(&self) -> u32 {
+        self.steps
+    }
+
+    /// The current observation.
+    pub fn observation(&self) -> &Observation {
+        &self.observation
+    }
+
+    /// Starts a new episode from the start-state distribution of the task, drawn from `seed` alone.
+    pub fn reset(&mut self, seed: u64) -> Result<Observation, EnvError> {
+        let mut rng = SeedRng::new(seed);
+        let task = self.config.task;
+        for _ in 0..MAX_START_ATTEMPTS {
+            if self.try_start_state(&mut rng, task)? {
+                self.steps = 0;
+                self.data.set_time(0.0);
+                self.data.forward();
+                self.refresh_observation();
+                return Ok(self.observation);
+            }
+        }
+        Err(EnvError::StartState {
+            task,
+            attempts: MAX_START_ATTEMPTS,
+        })
+    }
+
+    /// Applies `action` for one 50 ms control step.
+    pub fn step(&mut self, action: &[f32; ACT_DIM]) -> Result<StepOutcome, EnvError> {
+        if let Some((index, &value)) = action.iter().enumerate().find(|(_, a)| !a.is_finite()) {
+            return Err(EnvError::NonFiniteAction { index, value });
+        }
+        let ctrl = self.data.ctrl_mut();
+        for ((c, &a), joint) in ctrl.iter_mut().zip(action).zip(ACTION_JOINTS) {
+            *c = f64::from((a.clamp(-1.0, 1.0) * joint.scale).clamp(joint.min, joint.max));
+        }
+        for _ in 0..SUBSTEPS {
+            self.data.step();
+        }
+        if self.data.qpos().iter().any(|q| !q.is_finite()) {
+            return Err(EnvError::Diverged {
+                time: self.data.time(),
+            });
+        }
+        // mj_step leaves positions one integration ahead of the kinematics; bring them level.
+        self.data.kinematics();
+        self.data.com_pos();
+        self.steps = self.steps.saturating_add(1);
+        self.refresh_observation();
+        let state = self.reward_state();
+        let predicates = state.predicates();
+        Ok(StepOutcome {
+            observation: self.observation,
+            reward: self.config.reward.evaluate(&state, predicates) as f32,
+            done: self.steps >= self.config.episode_steps,
+            success: self.config.task.is_success(predicates),
+            predicates,
+        })
+    }
+
+    /// The positions the rewards are computed from.
+    pub fn reward_state(&self) -> RewardState {
+        let ids = self.scene.ids();
+        let (pinch, _) = pinch_pose(&self.data, ids);
+        let xpos = self.data.xpos();
+        RewardState {
+            pinch,
+            brick1_pos: xpos.get(ids.brick1_body).copied().unwrap_or([0.0; 3]),
+            brick2_pos: xpos.get(ids.brick2_body).copied().unwrap_or([0.0; 3]),
+            brick2_mat: self
+                .data
+                .xmat()
+                .get(ids.brick2_body)
+                .copied()
+                .unwrap_or([0.0; 9]),
+        }
+    }
+
+    /// The predicates of the current state.
+    pub fn predicates(&self) -> Predicates {
+        self.reward_state().predicates()
+    }
+
+    /// Copies the simulation state and the step counter.
+    pub fn snapshot(&self) -> EnvSnapshot {
+        EnvSnapshot {
+            state: self.data.state(STATE_SPEC),
+            steps: self.steps,
+        }
+    }
+
+    /// Continues from `snapshot` (made by an environment over the same scene); stepping on gives exactly
+    /// what the original would have given.
+    pub fn restore(&mut self, snapshot: &EnvSnapshot) -> Result<Observation, EnvError> {
+        self.data
+            .set_state(&snapshot.state, STATE_SPEC)
+            .map_err(|source| EnvError::Snapshot { source })?;
+        self.data.forward();
+        self.steps = snapshot.steps;
+        self.refresh_observation();
+        Ok(self.observation)
+    }
+
+    fn refresh_observation(&mut self) {
+        write_observation(&self.data, self.scene.ids(), &mut self.observation);
+    }
+
+    /// One attempt at a start state; `Ok(false)` means "rejected, draw again".
+    fn try_start_state(&mut self, rng: &mut SeedRng, task: Task) -> Result<bool, EnvError> {
+        let ids = *self.scene.ids();
+        self.data.reset();
+        // Bricks: uniform in the start square with random yaw, far enough apart not to overlap.
+        let b1 = [
+            rng.uniform(-START_XY_RANGE, START_XY_RANGE),
+            rng.uniform(-START_XY_RANGE, START_XY_RANGE),
+        ];
+        let b2 = [
+            rng.uniform(-START_XY_RANGE, START_XY_RANGE),
+            rng.uniform(-START_XY_RANGE, START_XY_RANGE),
+        ];
+        let (yaw1, yaw2) = (rng.uniform(-PI, PI), rng.uniform(-PI, PI));
+        if task != Task::StackInHand && (b1[0] - b2[0]).hypot(b1[1] - b2[1]) < MIN_BRICK_SPACING {
+            return Ok(false);
+        }
+        set_free(&mut self.data, ids.brick1_qpos, [b1[0], b1[1], 0.0], yaw1);
+        set_free(&mut self.data, ids.brick2_qpos, [b2[0], b2[1], 0.0], yaw2);
+        // Hand: pinch site at a random point above the table, pointing down, random yaw.
+        let (zlo, zhi) = task.start_height();
+        let target = [
+            rng.uniform(-START_XY_RANGE, START_XY_RANGE),
+            rng.uniform(-START_XY_RANGE, START_XY_RANGE),
+            rng.uniform(zlo, zhi),
+        ];
+        let hand_yaw = rng.uniform(-PI, PI);
+        let fingers = rng.uniform(START_FINGER_RANGE.0, START_FINGER_RANGE.1);
+        {
+            let qpos = self.data.qpos_mut();
+            for (&adr, &q) in ids.joint_qpos.iter().zip(NOMINAL_ARM_QPOS.iter()) {
+                if let Some(slot) = qpos.get_mut(adr) {
+                    *slot = q;
+                }
+            }
+            for &adr in &ids.joint_qpos[ARM_JOINTS..] {
+                if let Some(slot) = qpos.get_mut(adr) {
+                    *slot = if task == Task::StackInHand {
+                        START_FINGER_RANGE.0
+                    } else {
+                        fingers
+                    };
+                }
+            }
+        }
+        let (pos_err, rot_err) =
+            solve_ik(&mut self.data, &ids, &target, &down_rotation(hand_yaw), 100);
+        if pos_err > 0.005 || rot_err > 0.05 {
+            return Ok(false);
+        }
+        if task == Task::StackInHand {
+            return Ok(self.place_in_hand(&ids, hand_yaw, b1));
+        }
+        Ok(true)
+    }
+
+    /// Puts brick 1 between the open fingers, closes them while holding the brick still, lets it settle
+    /// and checks that it is really held.
+    fn place_in_hand(&mut self, ids: &SceneIds, hand_yaw: f64, brick2_free_spot: [f64; 2]) -> bool {
+        let _ = brick2_free_spot;
+        let (pinch, _) = pinch_pose(&self.data, ids);
+        let held = [pinch[0], pinch[1], pinch[2] - GRASP_DEPTH];
+        // Brick 2 must not sit under the hand: park it where brick 1 would have been if that is clear.
+        let b2 = [
+            self.data
+                .qpos()
+                .get(ids.brick2_qpos)
+                .copied()
+                .unwrap_or(0.0),
+            self.data
+                .qpos()
+                .get(ids.brick2_qpos + 1)
+                .copied()
+                .unwrap_or(0.0),
+        ];
+        if (b2[0] - held[0]).hypot(b2[1] - held[1]) < MIN_BRICK_SPACING {
+            return false;
+        }
+        set_free(&mut self.data, ids.brick1_qpos, held, hand_yaw);
+        let brick_state: Vec<f64> = (0..7)
+            .map(|k| {
+                self.data
+                    .qpos()
+                    .get(ids.brick1_qpos + k)
+                    .copied()
+                    .unwrap_or(0.0)
+            })
+            .collect();
+        {
+            let ctrl = self.data.ctrl_mut();
+            for (i, c) in ctrl.iter_mut().enumerate() {
+                *c = if i >= ARM_JOINTS { 5.0 } else { 0.0 };
+            }
+        }
+        // Close for 0.8 s with the brick pinned, then 0.3 s free.
+        for k in 0..550 {
+            self.data.step();
+            if k < 400 {
+                let qpos = self.data.qpos_mut();
+                for (j, &v) in brick_state.iter().enumerate() {
+                    if let Some(slot) = qpos.get_mut(ids.brick1_qpos + j) {
+                        *slot = v;
+                    }
+                }
+                let qvel = self.data.qvel_mut();
+                for j in 0..6 {
+                    if let Some(slot) = qvel.get_mut(ids.brick1_dof + j) {
+                        *slot = 0.0;
+                    }
+                }
+            }
+        }
+        self.data.forward();
+        let (pinch, _) = pinch_pose(&self.data, ids);
+        let b1 = self
+            .data
+            .xpos()
+            .get(ids.brick1_body)
+            .copied()
+            .unwrap_or([0.0; 3]);
+        let drift = (b1[0] - pinch[0]).hypot(b1[1] - pinch[1]);
+        let depth = pinch[2] - b1[2];
+        drift < 0.015 && (depth - GRASP_DEPTH).abs() < 0.015 && b1[2] > 0.05
+    }
+}
+
+/// Writes a free joint's pose: position and a rotation of `yaw` about the vertical.
+fn set_free(data: &mut MjData<Arc<MjModel>>, adr: usize, pos: [f64; 3], yaw: f64) {
+    let (s, c) = (0.5 * yaw).sin_cos();
+    let pose = [pos[0], pos[1], pos[2], c, 0.0, 0.0, s];
+    let qpos = data.qpos_mut();
+    for (k, v) in pose.iter().enumerate() {
+        if let Some(slot) = qpos.get_mut(adr + k) {
+            *slot = *v;
+        }
+    }
+}

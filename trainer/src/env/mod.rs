@@ -1,0 +1,31 @@
+//! The simulated world of the paper: a Kinova Jaco arm with a 3-finger hand and two Duplo bricks on a
+//! table, in MuJoCo 3.17.0 through `mujoco-rs`.
+//!
+//! - [`Scene`] compiles the model once ([`scene`]); it is shared (`Arc<MjModel>`, `Sync`) by every
+//!   [`JacoEnv`], each of which owns one `MjData`: one environment per thread scales across cores.
+//! - [`JacoEnv`] is the environment: [`JacoEnv::reset`] from a seed, [`JacoEnv::step`] with a 9-D action in
+//!   [-1, 1], [`JacoEnv::snapshot`] / [`JacoEnv::restore`].
+//! - [`Task`] (Grasp, StackInHand, Stack, Reach) fixes the start states and success; [`Reward`] is one of
+//!   the paper's reward functions, built from the reach/grasp/stack [`Predicates`] ([`rewards`]).
+//! - The observation ([`observation`]) follows `dex_runtime::interface::OBSERVATION_FIELDS` exactly.
+//! - [`Demonstrator`] is a scripted state-based controller that solves the tasks ([`demo`]).
+//!
+//! Not here: rendering, the learner, and the real robot's CAN side.
+
+pub mod demo;
+pub mod environment;
+pub mod error;
+pub mod kinematics;
+pub mod observation;
+pub mod rewards;
+pub mod rng;
+pub mod scene;
+pub mod tasks;
+
+pub use demo::{Demonstrator, Phase};
+pub use environment::{EnvConfig, EnvSnapshot, JacoEnv, StepOutcome};
+pub use error::EnvError;
+pub use observation::Observation;
+pub use rewards::{Predicates, Reward, RewardState};
+pub use scene::{AssetPaths, Scene};
+pub use tasks::Task;
