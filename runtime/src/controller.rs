@@ -308,7 +308,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         let period = u64::from(self.cfg.period_us.max(1));
         let Some(next) = self.next_tick_us else {
             self.next_tick_us = Some(now.saturating_add(period));
-            self.enter(State::PreOperational, &mut out);
+            self.boot_up(&mut out);
             return out;
         };
         if now < next {
@@ -328,7 +328,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.evaluations_this_cycle = 0;
 
         match self.state {
-            State::Boot => self.enter(State::PreOperational, &mut out),
+            State::Boot => self.boot_up(&mut out),
             State::Operational => {
                 let limit = u64::from(self.cfg.watchdog_cycles).saturating_mul(period);
                 if now.saturating_sub(self.last_obs_us) > limit {
@@ -464,6 +464,13 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
                 self.send_safe_action(out);
             }
         }
+    }
+
+    /// CANopen boot-up message (heartbeat with state 0x00), then pre-operational.
+    fn boot_up(&mut self, out: &mut Outbox) {
+        self.state = State::Boot;
+        self.push_heartbeat(out);
+        self.enter(State::PreOperational, out);
     }
 
     fn safe_stop(&mut self, fault: FaultCode, out: &mut Outbox) {

@@ -19,6 +19,8 @@ extern crate std;
 pub mod can;
 pub mod clock;
 pub mod controller;
+#[cfg(feature = "std")]
+pub mod dbc;
 pub mod error;
 pub mod interface;
 pub mod mlp;

@@ -66,3 +66,152 @@ impl AlignedBytes {
         &all[..self.len]
     }
 }
+
+/// One CAN test vector: the bytes the Rust codec produced and the physical signal values they carry.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CanVector {
+    /// DBC message name.
+    pub message: std::string::String,
+    /// 11-bit identifier.
+    pub id: u16,
+    /// Frame bytes.
+    pub data: Vec<u8>,
+    /// Signal name and physical value, in DBC order.
+    pub signals: Vec<(std::string::String, f64)>,
+}
+
+/// Vectors covering every message of the DBC, made with the Rust codec (see `tests/can/`).
+pub fn can_vectors() -> Vec<CanVector> {
+    use crate::can::e2e::E2eSender;
+    use crate::can::messages::{
+        ACTION_FRAMES, NmtCommand, OBS_FRAMES, SIGNALS_PER_FRAME, emcy_frame, encode_action,
+        encode_observation, heartbeat_frame, nmt_frame, policy_info_frame, split_signal_frame,
+    };
+    use crate::dbc::{
+        action_message_name, dbc_scale, observation_message_name, observation_signal_name,
+    };
+    use crate::interface::{ACT_DIM, ACTION_JOINTS};
+    use embedded_can::Frame;
+    use std::string::ToString;
+
+    let mut out = Vec::new();
+    let head = |data: &[u8], nibble: Option<&str>| {
+        let mut s = std::vec![
+            ("crc".to_string(), f64::from(data[0])),
+            ("alive_counter".to_string(), f64::from(data[1] & 0x0F)),
+        ];
+        if let Some(n) = nibble {
+            s.push((n.to_string(), f64::from(data[1] >> 4)));
+        }
+        s
+    };
+    let mut obs_tx = [E2eSender::default(); OBS_FRAMES];
+    for (n, obs) in observation_trace(2, 77).iter().enumerate() {
+        let frames = encode_observation(obs, 3 + n as u8 * 9, &mut obs_tx);
+        for (k, f) in frames.iter().enumerate() {
+            let mut signals = head(f.data(), Some("sample_counter"));
+            if let Some((_, raw)) = split_signal_frame(f.data()) {
+                for (slot, r) in raw.iter().enumerate() {
+                    let index = k * SIGNALS_PER_FRAME + slot;
+                    if let (Some(name), Some(q)) =
+                        (observation_signal_name(index), quantity_of(index))
+                    {
+                        signals.push((name, f64::from(*r) * dbc_scale(q.lsb())));
+                    }
+                }
+            }
+            out.push(CanVector {
+                message: observation_message_name(k),
+                id: f.standard_id().unwrap_or(0),
+                data: f.data().to_vec(),
+                signals,
+            });
+        }
+    }
+    let mut act_tx = [E2eSender::default(); ACTION_FRAMES];
+    let action: [f32; ACT_DIM] = [0.5, -0.25, 0.628, -0.838, 0.001, 0.0, 5.0, -4.999, 2.5];
+    for (k, f) in encode_action(&action, 12, &mut act_tx).iter().enumerate() {
+        let mut signals = head(f.data(), Some("sample_counter"));
+        if let Some((_, raw)) = split_signal_frame(f.data()) {
+            for (slot, r) in raw.iter().enumerate() {
+                if let Some(j) = ACTION_JOINTS.get(k * SIGNALS_PER_FRAME + slot) {
+                    signals.push((j.name.to_string(), f64::from(*r) * dbc_scale(1.0e-3)));
+                }
+            }
+        }
+        out.push(CanVector {
+            message: action_message_name(k),
+            id: f.standard_id().unwrap_or(0),
+            data: f.data().to_vec(),
+            signals,
+        });
+    }
+    let mut tx = E2eSender::default();
+    for _ in 0..3 {
+        let f = emcy_frame(0x10, 0x8250, 1, 3, &mut tx);
+        let mut signals = head(f.data(), None);
+        signals.push(("error_code".to_string(), 33360.0));
+        signals.push(("fault_code".to_string(), 1.0));
+        signals.push(("state".to_string(), 3.0));
+        out.push(CanVector {
+            message: "EMCY".to_string(),
+            id: f.standard_id().unwrap_or(0),
+            data: f.data().to_vec(),
+            signals,
+        });
+    }
+    let f = policy_info_frame(0xDEAD_BEEF, 1, 3, &mut E2eSender::default());
+    let mut signals = head(f.data(), None);
+    signals.push(("layout_hash".to_string(), f64::from(0xDEAD_BEEFu32)));
+    signals.push(("format_version".to_string(), 1.0));
+    signals.push(("task".to_string(), 3.0));
+    out.push(CanVector {
+        message: "POLICY_INFO".to_string(),
+        id: f.standard_id().unwrap_or(0),
+        data: f.data().to_vec(),
+        signals,
+    });
+    let f = heartbeat_frame(0x10, 0x05, 42, 2, 0);
+    out.push(CanVector {
+        message: "HEARTBEAT".to_string(),
+        id: f.standard_id().unwrap_or(0),
+        data: f.data().to_vec(),
+        signals: std::vec![
+            ("nmt_state".to_string(), 5.0),
+            ("counter".to_string(), 42.0),
+            ("state".to_string(), 2.0),
+            ("fault_code".to_string(), 0.0),
+        ],
+    });
+    let f = nmt_frame(NmtCommand::Start, 0x10);
+    out.push(CanVector {
+        message: "NMT".to_string(),
+        id: 0,
+        data: f.data().to_vec(),
+        signals: std::vec![("command".to_string(), 1.0), ("node_id".to_string(), 16.0)],
+    });
+    out
+}
+
+/// The vectors as JSON text (one object per line inside a list), as committed in `tests/can/`.
+pub fn can_vectors_json() -> std::string::String {
+    use std::fmt::Write;
+    let mut s = std::string::String::from("[\n");
+    let vectors = can_vectors();
+    for (i, v) in vectors.iter().enumerate() {
+        let hex: std::string::String = v.data.iter().map(|b| std::format!("{b:02x}")).collect();
+        let _ = write!(
+            s,
+            "  {{\"message\": \"{}\", \"id\": {}, \"data\": \"{}\", \"signals\": {{",
+            v.message, v.id, hex
+        );
+        for (j, (name, value)) in v.signals.iter().enumerate() {
+            let sep = if j + 1 == v.signals.len() { "" } else { ", " };
+            let _ = write!(s, "\"{name}\": {value:?}{sep}");
+        }
+        let sep = if i + 1 == vectors.len() { "" } else { "," };
+        let _ = writeln!(s, "}}}}{sep}");
+    }
+    s.push_str("]\n");
+    s
+}

@@ -1,0 +1,155 @@
+//! Generates the cell's DBC description (`can/jaco.dbc`) from [`crate::interface`] and
+//! [`crate::can::messages`], so the file can never drift from the codec (`std` only).
+
+use std::fmt::Write;
+use std::string::String;
+
+use crate::can::messages::{
+    ACTION_BASE_ID, ACTION_FRAMES, ACTION_QUANTITY, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NMT_ID,
+    OBS_BASE_ID, OBS_FRAMES, POLICY_INFO_ID, SIGNALS_PER_FRAME,
+};
+use crate::interface::{ACTION_JOINTS, OBSERVATION_FIELDS, Quantity};
+
+/// Name of observation value `index` in the DBC (`<field>_<n>`).
+pub fn observation_signal_name(index: usize) -> Option<String> {
+    let mut start = 0;
+    for f in OBSERVATION_FIELDS {
+        if index < start + f.size {
+            return Some(std::format!("{}_{}", f.name, index - start));
+        }
+        start += f.size;
+    }
+    None
+}
+
+/// Name of observation frame `k` (`OBS_00`...).
+pub fn observation_message_name(k: usize) -> String {
+    std::format!("OBS_{k:02}")
+}
+
+/// Name of action frame `k` (`ACTION_0`...).
+pub fn action_message_name(k: usize) -> String {
+    std::format!("ACTION_{k}")
+}
+
+fn e2e_header(out: &mut String, receiver: &str, nibble: Option<&str>) {
+    let _ = writeln!(out, " SG_ crc : 0|8@1+ (1,0) [0|255] \"\" {receiver}");
+    let _ = writeln!(
+        out,
+        " SG_ alive_counter : 8|4@1+ (1,0) [0|14] \"\" {receiver}"
+    );
+    if let Some(name) = nibble {
+        let _ = writeln!(out, " SG_ {name} : 12|4@1+ (1,0) [0|15] \"\" {receiver}");
+    }
+}
+
+/// The physical value per bit as the DBC states it (the decimal of [`scale_text`]).
+pub fn dbc_scale(lsb: f32) -> f64 {
+    scale_text(lsb).parse().unwrap_or(f64::from(lsb))
+}
+
+/// Scale as text: exact for powers of two, else the shortest decimal that reads back as the f32.
+fn scale_text(lsb: f32) -> String {
+    let exact = f64::from(lsb);
+    if exact.log2().fract() == 0.0 {
+        std::format!("{exact}")
+    } else {
+        std::format!("{lsb}")
+    }
+}
+
+fn signal(out: &mut String, name: &str, slot: usize, q: Quantity, limit: f32, receiver: &str) {
+    let _ = writeln!(
+        out,
+        " SG_ {name} : {}|16@1- ({},0) [{}|{}] \"{}\" {receiver}",
+        16 + 16 * slot,
+        scale_text(q.lsb()),
+        -limit,
+        limit,
+        q.unit()
+    );
+}
+
+/// The DBC text for a controller with CANopen node id `node`.
+pub fn generate(node: u8) -> String {
+    let mut out = String::new();
+    out.push_str("VERSION \"dexterous-stack jaco cell 1\"\n\nNS_ :\n\tCM_\n\tBA_DEF_\n\tBA_\n\tVAL_\n\nBS_:\n\n");
+    out.push_str("BU_: MASTER PLANT CONTROLLER\n\n");
+    let _ = writeln!(out, "BO_ {NMT_ID} NMT: 2 MASTER");
+    out.push_str(" SG_ command : 0|8@1+ (1,0) [0|255] \"\" CONTROLLER\n");
+    out.push_str(" SG_ node_id : 8|8@1+ (1,0) [0|127] \"\" CONTROLLER\n\n");
+
+    let _ = writeln!(
+        out,
+        "BO_ {} EMCY: 8 CONTROLLER",
+        EMCY_BASE_ID + u16::from(node)
+    );
+    e2e_header(&mut out, "MASTER", None);
+    out.push_str(" SG_ error_code : 16|16@1+ (1,0) [0|65535] \"\" MASTER\n");
+    out.push_str(" SG_ fault_code : 32|8@1+ (1,0) [0|255] \"\" MASTER\n");
+    out.push_str(" SG_ state : 40|8@1+ (1,0) [0|4] \"\" MASTER\n\n");
+
+    for k in 0..OBS_FRAMES {
+        let _ = writeln!(
+            out,
+            "BO_ {} {}: 8 PLANT",
+            OBS_BASE_ID + k as u16,
+            observation_message_name(k)
+        );
+        e2e_header(&mut out, "CONTROLLER", Some("sample_counter"));
+        for slot in 0..SIGNALS_PER_FRAME {
+            let index = k * SIGNALS_PER_FRAME + slot;
+            if let (Some(name), Some(q)) = (
+                observation_signal_name(index),
+                crate::interface::quantity_of(index),
+            ) {
+                signal(&mut out, &name, slot, q, q.limit(), "CONTROLLER");
+            }
+        }
+        out.push('\n');
+    }
+
+    for k in 0..ACTION_FRAMES {
+        let _ = writeln!(
+            out,
+            "BO_ {} {}: 8 CONTROLLER",
+            ACTION_BASE_ID + k as u16,
+            action_message_name(k)
+        );
+        e2e_header(&mut out, "PLANT", Some("sample_counter"));
+        for slot in 0..SIGNALS_PER_FRAME {
+            if let Some(j) = ACTION_JOINTS.get(k * SIGNALS_PER_FRAME + slot) {
+                signal(&mut out, j.name, slot, ACTION_QUANTITY, j.max, "PLANT");
+            }
+        }
+        out.push('\n');
+    }
+
+    let _ = writeln!(out, "BO_ {POLICY_INFO_ID} POLICY_INFO: 8 CONTROLLER");
+    e2e_header(&mut out, "MASTER", None);
+    out.push_str(" SG_ layout_hash : 16|32@1+ (1,0) [0|4294967295] \"\" MASTER\n");
+    out.push_str(" SG_ format_version : 48|8@1+ (1,0) [0|255] \"\" MASTER\n");
+    out.push_str(" SG_ task : 56|8@1+ (1,0) [0|255] \"\" MASTER\n\n");
+
+    let _ = writeln!(
+        out,
+        "BO_ {} HEARTBEAT: 4 CONTROLLER",
+        HEARTBEAT_BASE_ID + u16::from(node)
+    );
+    out.push_str(" SG_ nmt_state : 0|8@1+ (1,0) [0|127] \"\" MASTER\n");
+    out.push_str(" SG_ counter : 8|8@1+ (1,0) [0|255] \"\" MASTER\n");
+    out.push_str(" SG_ state : 16|8@1+ (1,0) [0|4] \"\" MASTER\n");
+    out.push_str(" SG_ fault_code : 24|8@1+ (1,0) [0|255] \"\" MASTER\n\n");
+
+    out.push_str("CM_ \"Generated by dex-runtime (runtime/src/dbc.rs); do not edit. E2E: crc = CRC-8/SAE-J1850 over data id (CAN id, LE u16) and bytes 1..n. Raw -32768 in a 16-bit signal means not available.\";\n");
+    let _ = writeln!(
+        out,
+        "VAL_ {} state 0 \"boot\" 1 \"pre_operational\" 2 \"operational\" 3 \"safe_stop\" 4 \"fault\" ;",
+        HEARTBEAT_BASE_ID + u16::from(node)
+    );
+    let _ = writeln!(
+        out,
+        "VAL_ {NMT_ID} command 1 \"start\" 2 \"stop\" 128 \"enter_pre_operational\" 129 \"reset_node\" 130 \"reset_communication\" ;"
+    );
+    out
+}

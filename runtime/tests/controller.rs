@@ -1,0 +1,345 @@
+//! The controller's state machine, watchdog, fault handling and end-to-end checks, driven by a mock
+//! clock and frames built with the plant-side codec.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
+
+use dex_policy::PolicyView;
+use dex_runtime::can::CanFrame;
+use dex_runtime::can::e2e::{E2eReceiver, E2eSender, E2eStatus};
+use dex_runtime::can::messages::{
+    ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES,
+    POLICY_INFO_ID, decode_action_frame, encode_observation, nmt_frame, quantise_observation,
+};
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_runtime::testkit::{AlignedBytes, aligned_copy, jaco_policy, observation_trace};
+use dex_runtime::{
+    Controller, ControllerConfig, FaultCode, LoadError, Mlp, MockClock, Outbox, State,
+};
+use embedded_can::Frame;
+
+const PERIOD: u64 = 50_000;
+const NODE: u8 = 0x10;
+
+fn policy() -> AlignedBytes {
+    aligned_copy(include_bytes!("golden/jaco_64.dxpl"))
+}
+
+struct Plant {
+    tx: [E2eSender; OBS_FRAMES],
+    sample: u8,
+}
+
+impl Plant {
+    fn new() -> Self {
+        Plant {
+            tx: [E2eSender::default(); OBS_FRAMES],
+            sample: 0,
+        }
+    }
+    fn frames(&mut self, obs: &[f32; OBS_DIM]) -> [CanFrame; OBS_FRAMES] {
+        self.sample = self.sample.wrapping_add(1);
+        encode_observation(obs, self.sample, &mut self.tx)
+    }
+}
+
+fn ids(out: &Outbox) -> Vec<u16> {
+    out.iter().map(|f| f.standard_id().unwrap()).collect()
+}
+
+fn emcy_code(out: &Outbox) -> Option<u16> {
+    out.iter()
+        .find(|f| f.standard_id() == Some(EMCY_BASE_ID + u16::from(NODE)))
+        .map(|f| u16::from_le_bytes([f.data()[2], f.data()[3]]))
+}
+
+fn actions(out: &Outbox) -> Option<[f32; ACT_DIM]> {
+    let mut action = [f32::NAN; ACT_DIM];
+    let mut seen = 0;
+    for f in out.iter() {
+        let id = f.standard_id().unwrap();
+        if (ACTION_BASE_ID..ACTION_BASE_ID + ACTION_FRAMES as u16).contains(&id) {
+            let k = usize::from(id - ACTION_BASE_ID);
+            let mut rx = E2eReceiver::new(15);
+            assert_eq!(
+                rx.check(id, f.data()),
+                E2eStatus::Ok,
+                "action frame protected"
+            );
+            decode_action_frame(k, f.data(), &mut action).unwrap();
+            seen += 1;
+        }
+    }
+    (seen == ACTION_FRAMES).then_some(action)
+}
+
+/// Feeds a whole observation; returns what the controller sent in response to the last frame.
+fn feed(c: &mut Controller<'_, 64>, clock: &MockClock, frames: &[CanFrame]) -> Outbox {
+    let mut last = Outbox::new();
+    for f in frames {
+        last = c.on_frame(f, clock);
+    }
+    last
+}
+
+fn operational<'p>(view: &PolicyView<'p>, clock: &MockClock) -> Controller<'p, 64> {
+    let mut c = Controller::<64>::new(ControllerConfig::default());
+    c.poll(clock);
+    c.load_policy(view).unwrap();
+    c.on_frame(&nmt_frame(NmtCommand::Start, NODE), clock);
+    assert_eq!(c.state(), State::Operational);
+    c
+}
+
+#[test]
+fn boots_to_preoperational_with_boot_up_heartbeat_and_policy_info() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = Controller::<64>::new(ControllerConfig::default());
+    assert_eq!(c.state(), State::Boot);
+    let out = c.poll(&clock);
+    assert_eq!(c.state(), State::PreOperational);
+    let hb: Vec<&CanFrame> = out
+        .iter()
+        .filter(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))
+        .collect();
+    assert_eq!(hb.len(), 2);
+    assert_eq!(hb[0].data()[0], 0x00, "boot-up");
+    assert_eq!(hb[1].data()[0], 0x7F, "pre-operational");
+    c.load_policy(&view).unwrap();
+    clock.advance(PERIOD);
+    let out = c.poll(&clock);
+    let info = out
+        .iter()
+        .find(|f| f.standard_id() == Some(POLICY_INFO_ID))
+        .expect("policy info after load");
+    assert_eq!(
+        u32::from_le_bytes(info.data()[2..6].try_into().unwrap()),
+        view.header().layout_hash
+    );
+    assert!(
+        actions(&out).unwrap().iter().all(|a| *a == 0.0),
+        "safe action in pre-op"
+    );
+}
+
+#[test]
+fn start_without_policy_is_refused_with_an_emergency() {
+    let clock = MockClock::new(0);
+    let mut c = Controller::<64>::new(ControllerConfig::default());
+    c.poll(&clock);
+    let out = c.on_frame(&nmt_frame(NmtCommand::Start, NODE), &clock);
+    assert_eq!(c.state(), State::PreOperational);
+    assert_eq!(c.fault(), FaultCode::NoPolicy);
+    assert_eq!(emcy_code(&out), Some(0xFF05));
+}
+
+#[test]
+fn operational_evaluates_every_complete_observation_exactly_like_the_evaluator() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut reference = Mlp::<64>::new(&view).unwrap();
+    let mut c = operational(&view, &clock);
+    let mut plant = Plant::new();
+    for obs in observation_trace(30, 1) {
+        clock.advance(PERIOD);
+        c.poll(&clock);
+        let frames = plant.frames(&obs);
+        for f in &frames[..OBS_FRAMES - 1] {
+            assert!(
+                c.on_frame(f, &clock).is_empty(),
+                "no action before the last frame"
+            );
+        }
+        let out = c.on_frame(&frames[OBS_FRAMES - 1], &clock);
+        assert_eq!(ids(&out), [0x280, 0x281, 0x282]);
+        let sent = actions(&out).unwrap();
+        let quantised: [f32; OBS_DIM] = core::array::from_fn(|i| quantise_observation(i, obs[i]));
+        let mut want = [0.0; ACT_DIM];
+        reference.act(&quantised, &mut want).unwrap();
+        assert_eq!(c.last_action().map(f32::to_bits), want.map(f32::to_bits));
+        for (s, w) in sent.iter().zip(want) {
+            assert!((s - w).abs() <= 0.0005 + 1e-6, "action quantised to 1e-3");
+        }
+    }
+    assert_eq!(c.diagnostics().evaluations, 30);
+    assert_eq!(c.diagnostics().e2e_errors, 0);
+}
+
+#[test]
+fn watchdog_safe_stops_within_three_cycles_and_sends_zero_velocity() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = operational(&view, &clock);
+    let mut plant = Plant::new();
+    let obs = observation_trace(1, 2)[0];
+    clock.advance(1_000);
+    assert!(actions(&feed(&mut c, &clock, &plant.frames(&obs))).is_some());
+    let mut stopped_at = None;
+    for tick in 1..=5 {
+        clock.set(tick * PERIOD + 2_000);
+        let out = c.poll(&clock);
+        if c.state() == State::SafeStop && stopped_at.is_none() {
+            stopped_at = Some(tick);
+            assert_eq!(emcy_code(&out), Some(0x8250));
+            assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+        }
+    }
+    assert_eq!(
+        stopped_at,
+        Some(3),
+        "150 ms watchdog = third cycle without observation"
+    );
+    assert_eq!(c.fault(), FaultCode::ObservationTimeout);
+    // Observations while safe-stopped are not evaluated.
+    let out = feed(&mut c, &clock, &plant.frames(&obs));
+    assert!(actions(&out).is_none());
+    // NMT start recovers and reports the error reset.
+    let out = c.on_frame(&nmt_frame(NmtCommand::Start, NODE), &clock);
+    assert_eq!(c.state(), State::Operational);
+    assert_eq!(emcy_code(&out), Some(0x0000));
+}
+
+#[test]
+fn non_finite_and_out_of_range_observations_fault() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    for (index, value, fault, code) in [
+        (5, f32::NAN, FaultCode::ObservationNonFinite, 0xFF02),
+        (20, f32::INFINITY, FaultCode::ObservationNonFinite, 0xFF02),
+        (30, 3.1, FaultCode::ObservationOutOfRange, 0xFF03),
+        (0, 1.9, FaultCode::ObservationOutOfRange, 0xFF03),
+    ] {
+        let mut c = operational(&view, &clock);
+        let mut plant = Plant::new();
+        let mut obs = [0.0f32; OBS_DIM];
+        obs[index] = value;
+        let out = feed(&mut c, &clock, &plant.frames(&obs));
+        assert_eq!(c.state(), State::SafeStop, "index {index}");
+        assert_eq!(c.fault(), fault);
+        assert_eq!(emcy_code(&out), Some(code));
+        assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+    }
+}
+
+#[test]
+fn corrupted_repeated_and_skipped_frames_are_dropped_and_counted() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = operational(&view, &clock);
+    let mut plant = Plant::new();
+    let obs = observation_trace(4, 4);
+    assert!(actions(&feed(&mut c, &clock, &plant.frames(&obs[0]))).is_some());
+    let frames = plant.frames(&obs[1]);
+    // A corrupted frame 4: dropped, so this observation never completes.
+    let mut bad = frames[4].data().to_vec();
+    bad[3] ^= 0x01;
+    let bad = CanFrame::standard(frames[4].standard_id().unwrap(), &bad).unwrap();
+    for (k, f) in frames.iter().enumerate() {
+        let out = c.on_frame(if k == 4 { &bad } else { f }, &clock);
+        assert!(actions(&out).is_none());
+    }
+    assert_eq!(c.diagnostics().e2e_errors, 1);
+    // The same frame again: repeated.
+    c.on_frame(&frames[0], &clock);
+    assert_eq!(c.diagnostics().repeated, 1);
+    // Frame 4's alive counter now jumps by two (one frame lost): wrong sequence with max delta 1.
+    let out = feed(&mut c, &clock, &plant.frames(&obs[2]));
+    assert!(actions(&out).is_none());
+    assert_eq!(c.diagnostics().wrong_sequence, 1);
+    // Resynchronised: the next sample completes, and only its own values are used.
+    let out = feed(&mut c, &clock, &plant.frames(&obs[3]));
+    assert!(actions(&out).is_some());
+    assert_eq!(c.diagnostics().incomplete_observations, 2);
+    let quantised: [f32; OBS_DIM] = core::array::from_fn(|i| quantise_observation(i, obs[3][i]));
+    assert_eq!(c.last_observation(), &quantised);
+}
+
+#[test]
+fn policies_load_only_outside_operational_and_must_match_the_layout() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = operational(&view, &clock);
+    assert_eq!(c.load_policy(&view), Err(LoadError::Operational));
+    c.on_frame(&nmt_frame(NmtCommand::EnterPreOperational, NODE), &clock);
+    assert_eq!(c.state(), State::PreOperational);
+    assert_eq!(c.load_policy(&view), Ok(()));
+
+    let golden = aligned_copy(include_bytes!(
+        "../../policy-format/tests/golden/small.dxpl"
+    ));
+    let other = PolicyView::decode(golden.as_bytes()).unwrap();
+    let before = c.policy_info();
+    assert!(matches!(
+        c.load_policy(&other),
+        Err(LoadError::Format(
+            dex_policy::FormatError::ObservationLayoutMismatch { field: 0 }
+        ))
+    ));
+    assert_eq!(c.policy_info(), before, "old policy stays active");
+    assert_eq!(c.state(), State::PreOperational);
+
+    let wide = aligned_copy(&jaco_policy(&[128], 1).unwrap());
+    let wide = PolicyView::decode(wide.as_bytes()).unwrap();
+    assert!(matches!(
+        c.load_policy(&wide),
+        Err(LoadError::Format(
+            dex_policy::FormatError::ExceedsCapacity { .. }
+        ))
+    ));
+}
+
+#[test]
+fn nmt_addressing_stop_and_reset() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = operational(&view, &clock);
+    c.on_frame(&nmt_frame(NmtCommand::Stop, 0x22), &clock);
+    assert_eq!(
+        c.state(),
+        State::Operational,
+        "other node's command ignored"
+    );
+    let out = c.on_frame(&nmt_frame(NmtCommand::Stop, 0), &clock);
+    assert_eq!(c.state(), State::SafeStop, "broadcast applies");
+    assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+    c.on_frame(&nmt_frame(NmtCommand::ResetNode, NODE), &clock);
+    assert_eq!(c.state(), State::Boot);
+    clock.advance(PERIOD);
+    c.poll(&clock);
+    assert_eq!(c.state(), State::PreOperational);
+    assert!(c.policy_info().is_some(), "policy survives a node reset");
+    // Garbage on the NMT id and unknown ids are ignored.
+    c.on_frame(&CanFrame::standard(0, &[0x55]).unwrap(), &clock);
+    c.on_frame(&CanFrame::standard(0x123, &[1, 2, 3]).unwrap(), &clock);
+    assert_eq!(c.state(), State::PreOperational);
+    assert_eq!(c.diagnostics().ignored_frames, 2);
+}
+
+#[test]
+fn heartbeat_period_and_missed_cycles() {
+    let clock = MockClock::new(0);
+    let mut c = Controller::<64>::new(ControllerConfig::default());
+    c.poll(&clock);
+    let mut heartbeats = Vec::new();
+    for tick in 1..=40u64 {
+        clock.set(tick * PERIOD);
+        let out = c.poll(&clock);
+        if out
+            .iter()
+            .any(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))
+        {
+            heartbeats.push(tick);
+        }
+    }
+    assert_eq!(heartbeats, [10, 20, 30, 40]);
+    clock.set(45 * PERIOD + 10);
+    c.poll(&clock);
+    assert_eq!(c.diagnostics().missed_cycles, 4);
+    assert_eq!(c.diagnostics().cycles, 41);
+}
