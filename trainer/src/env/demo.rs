@@ -27,6 +27,8 @@ pub const PRESHAPE: f64 = 0.5;
 pub const POSITION_GAIN: f64 = 8.0;
 /// Orientation gain, 1/s.
 pub const ORIENTATION_GAIN: f64 = 6.0;
+/// Angular speed limit of the hand, rad/s (below wrist joint 6's 0.838 rad/s).
+pub const MAX_ANGULAR_SPEED: f64 = 0.7;
 /// Speed limit of the pinch site, m/s.
 pub const MAX_SPEED: f64 = 0.35;
 
@@ -132,14 +134,19 @@ impl Demonstrator {
         ];
         // Hand yaw that turns brick 1 (held) to brick 2's yaw.
         let place_yaw = hand_yaw + wrap_half_pi(yaw_of(&m2) - yaw_of(&m1));
-        let finger_vel: Vec<f64> =
-            ids.joint_dof[ARM_JOINTS..].iter().map(|&a| data.qvel().get(a).copied().unwrap_or(0.0)).collect();
-        let finger_pos: Vec<f64> =
-            ids.joint_qpos[ARM_JOINTS..].iter().map(|&a| data.qpos().get(a).copied().unwrap_or(0.0)).collect();
+        let finger_vel: Vec<f64> = ids.joint_dof[ARM_JOINTS..]
+            .iter()
+            .map(|&a| data.qvel().get(a).copied().unwrap_or(0.0))
+            .collect();
+        let finger_pos: Vec<f64> = ids.joint_qpos[ARM_JOINTS..]
+            .iter()
+            .map(|&a| data.qpos().get(a).copied().unwrap_or(0.0))
+            .collect();
         // Pre-shape: fingers to PRESHAPE rad (open enough for the brick's narrow side) while approaching.
         let preshape = (PRESHAPE - finger_pos.iter().sum::<f64>() / 3.0).clamp(-1.0, 1.0) * 4.0;
         let preshape = preshape.clamp(-1.0, 1.0);
         self.timer += 1;
+        let mut speed = MAX_SPEED;
 
         let (target, yaw, fingers): ([f64; 3], f64, f64) = loop {
             match self.phase {
@@ -180,13 +187,23 @@ impl Demonstrator {
                 }
                 Phase::Lift => {
                     let t = [self.anchor[0], self.anchor[1], LIFT_HEIGHT];
-                    if self.task != Task::Grasp && pinch[2] > b1[2] + GRASP_DEPTH && b1[2] > 0.04 {
+                    if self.timer > 12 && b1[2] < 0.01 {
+                        // The grasp missed: try again.
+                        self.enter(Phase::Approach, env);
+                        continue;
+                    }
+                    if self.task != Task::Grasp && b1[2] > 0.035 {
                         self.enter(Phase::Carry, env);
                         continue;
                     }
                     break (t, self.anchor_yaw, 1.0);
                 }
                 Phase::Carry => {
+                    if b1[2] < 0.01 {
+                        // Dropped on the table: pick it up again.
+                        self.enter(Phase::Approach, env);
+                        continue;
+                    }
                     let want = [
                         stack_site[0],
                         stack_site[1],
@@ -203,13 +220,17 @@ impl Demonstrator {
                     break (add(&pinch, &e), place_yaw, 1.0);
                 }
                 Phase::Lower => {
-                    let want = [stack_site[0], stack_site[1], stack_site[2] - 0.002];
-                    let e = sub(&want, &b1);
-                    if b1[2] - stack_site[2] < 0.003 || self.timer > 20 {
+                    let xy = norm3(&[stack_site[0] - b1[0], stack_site[1] - b1[1], 0.0]);
+                    let dz = b1[2] - stack_site[2];
+                    if (xy < 0.003 && dz < 0.004) || self.timer > 40 {
                         self.enter(Phase::Release, env);
                         continue;
                     }
-                    break (add(&pinch, &e), place_yaw, 1.0);
+                    // Hover until centred, then press down slowly.
+                    let hover = if xy > 0.004 { 0.008 } else { -0.003 };
+                    let want = [stack_site[0], stack_site[1], stack_site[2] + hover];
+                    speed = 0.08;
+                    break (add(&pinch, &sub(&want, &b1)), place_yaw, 1.0);
                 }
                 Phase::Release => {
                     if self.timer > 10 {
@@ -224,7 +245,7 @@ impl Demonstrator {
                 }
             }
         };
-        let mut action = self.track(env, &target, yaw);
+        let mut action = self.track(env, &target, yaw, speed);
         for a in &mut action[ARM_JOINTS..] {
             *a = fingers as f32;
         }
@@ -232,19 +253,25 @@ impl Demonstrator {
     }
 
     /// Resolved-rate step towards `target` with the hand pointing down at `yaw`.
-    fn track(&self, env: &JacoEnv, target: &[f64; 3], yaw: f64) -> [f32; ACT_DIM] {
+    fn track(&self, env: &JacoEnv, target: &[f64; 3], yaw: f64, max_speed: f64) -> [f32; ACT_DIM] {
         let ids = env.scene().ids();
         let e = pose_error(env.data(), ids, target, &down_rotation(yaw));
         let mut twist: Vec6 = [0.0; 6];
         let lin = norm3(&e[..3]) * POSITION_GAIN;
-        let s = if lin > MAX_SPEED {
-            MAX_SPEED / lin
+        let s = if lin > max_speed {
+            max_speed / lin
+        } else {
+            1.0
+        };
+        let ang = norm3(&e[3..]) * ORIENTATION_GAIN;
+        let sr = if ang > MAX_ANGULAR_SPEED {
+            MAX_ANGULAR_SPEED / ang
         } else {
             1.0
         };
         for i in 0..3 {
             twist[i] = e[i] * POSITION_GAIN * s;
-            twist[3 + i] = e[3 + i] * ORIENTATION_GAIN;
+            twist[3 + i] = e[3 + i] * ORIENTATION_GAIN * sr;
         }
         let jac = arm_jacobian(env.data(), ids);
         let qdot = damped_least_squares(&jac, &twist, 0.02);

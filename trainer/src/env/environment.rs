@@ -6,12 +6,13 @@ use std::sync::Arc;
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
 use mujoco_rs::prelude::*;
 
+use super::demo::{Demonstrator, Phase};
 use super::error::EnvError;
 use super::kinematics::{down_rotation, pinch_pose, solve_ik};
 use super::observation::{Observation, write_observation};
 use super::rewards::{Predicates, Reward, RewardState};
 use super::rng::SeedRng;
-use super::scene::{ARM_JOINTS, SUBSTEPS, Scene, SceneIds};
+use super::scene::{ARM_JOINTS, SUBSTEPS, Scene};
 use super::tasks::Task;
 
 /// The arm configuration that start-state inverse kinematics begins from: hand above the workspace,
@@ -25,6 +26,8 @@ pub const MIN_BRICK_SPACING: f64 = 0.08;
 pub const START_FINGER_RANGE: (f64, f64) = (0.15, 0.9);
 /// Height of brick 1's origin below the pinch site when held (StackInHand start, demonstrator grasp).
 pub const GRASP_DEPTH: f64 = 0.012;
+/// Control steps the StackInHand start may spend picking brick 1 up (not part of the episode).
+pub const PICK_UP_STEPS: u32 = 120;
 const MAX_START_ATTEMPTS: u32 = 50;
 
 /// What an environment simulates: the task, the reward and the episode length.
@@ -265,7 +268,7 @@ impl JacoEnv {
             rng.uniform(-START_XY_RANGE, START_XY_RANGE),
         ];
         let (yaw1, yaw2) = (rng.uniform(-PI, PI), rng.uniform(-PI, PI));
-        if task != Task::StackInHand && (b1[0] - b2[0]).hypot(b1[1] - b2[1]) < MIN_BRICK_SPACING {
+        if (b1[0] - b2[0]).hypot(b1[1] - b2[1]) < MIN_BRICK_SPACING {
             return Ok(false);
         }
         set_free(&mut self.data, ids.brick1_qpos, [b1[0], b1[1], 0.0], yaw1);
@@ -302,78 +305,43 @@ impl JacoEnv {
             return Ok(false);
         }
         if task == Task::StackInHand {
-            return Ok(self.place_in_hand(&ids, hand_yaw, b1));
+            self.data.forward();
+            return self.pick_up_brick1();
         }
         Ok(true)
     }
 
-    /// Puts brick 1 between the open fingers, closes them while holding the brick still, lets it settle
-    /// and checks that it is really held.
-    fn place_in_hand(&mut self, ids: &SceneIds, hand_yaw: f64, brick2_free_spot: [f64; 2]) -> bool {
-        let _ = brick2_free_spot;
-        let (pinch, _) = pinch_pose(&self.data, ids);
-        let held = [pinch[0], pinch[1], pinch[2] - GRASP_DEPTH];
-        // Brick 2 must not sit under the hand: park it where brick 1 would have been if that is clear.
-        let b2 = [
-            self.data
-                .qpos()
-                .get(ids.brick2_qpos)
-                .copied()
-                .unwrap_or(0.0),
-            self.data
-                .qpos()
-                .get(ids.brick2_qpos + 1)
-                .copied()
-                .unwrap_or(0.0),
-        ];
-        if (b2[0] - held[0]).hypot(b2[1] - held[1]) < MIN_BRICK_SPACING {
-            return false;
-        }
-        set_free(&mut self.data, ids.brick1_qpos, held, hand_yaw);
-        let brick_state: Vec<f64> = (0..7)
-            .map(|k| {
-                self.data
-                    .qpos()
-                    .get(ids.brick1_qpos + k)
-                    .copied()
-                    .unwrap_or(0.0)
-            })
-            .collect();
-        {
-            let ctrl = self.data.ctrl_mut();
-            for (i, c) in ctrl.iter_mut().enumerate() {
-                *c = if i >= ARM_JOINTS { 5.0 } else { 0.0 };
+    /// Lets the scripted demonstrator pick brick 1 up (Grasp script) and checks that it is really held:
+    /// lifted above 5 cm and within 3 cm of the pinch site after the hand has come to rest.
+    fn pick_up_brick1(&mut self) -> Result<bool, EnvError> {
+        let saved = self.config;
+        self.config = EnvConfig::new(Task::Grasp);
+        let mut demo = Demonstrator::new(Task::Grasp);
+        let mut lifted_for = 0;
+        let mut held = false;
+        for _ in 0..PICK_UP_STEPS {
+            let action = demo.act(self);
+            let step = self.step(&action);
+            if step.is_err() {
+                break;
             }
-        }
-        // Close for 0.8 s with the brick pinned, then 0.3 s free.
-        for k in 0..550 {
-            self.data.step();
-            if k < 400 {
-                let qpos = self.data.qpos_mut();
-                for (j, &v) in brick_state.iter().enumerate() {
-                    if let Some(slot) = qpos.get_mut(ids.brick1_qpos + j) {
-                        *slot = v;
-                    }
-                }
-                let qvel = self.data.qvel_mut();
-                for j in 0..6 {
-                    if let Some(slot) = qvel.get_mut(ids.brick1_dof + j) {
-                        *slot = 0.0;
-                    }
+            let s = self.reward_state();
+            let d = [
+                s.brick1_pos[0] - s.pinch[0],
+                s.brick1_pos[1] - s.pinch[1],
+                s.brick1_pos[2] - s.pinch[2],
+            ];
+            let near = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() < 0.03;
+            if demo.phase() == Phase::Lift && s.brick1_pos[2] > 0.05 && near {
+                lifted_for += 1;
+                if lifted_for >= 8 {
+                    held = true;
+                    break;
                 }
             }
         }
-        self.data.forward();
-        let (pinch, _) = pinch_pose(&self.data, ids);
-        let b1 = self
-            .data
-            .xpos()
-            .get(ids.brick1_body)
-            .copied()
-            .unwrap_or([0.0; 3]);
-        let drift = (b1[0] - pinch[0]).hypot(b1[1] - pinch[1]);
-        let depth = pinch[2] - b1[2];
-        drift < 0.015 && (depth - GRASP_DEPTH).abs() < 0.015 && b1[2] > 0.05
+        self.config = saved;
+        Ok(held)
     }
 }
 

@@ -96,8 +96,9 @@ fn solve6(mut a: [Vec6; 6], mut b: Vec6) -> Vec6 {
         }
         for r in col + 1..6 {
             let f = a[r][col] / d;
-            for c in col..6 {
-                a[r][c] -= f * a[col][c];
+            let pivot_row = a[col];
+            for (x, p) in a[r][col..].iter_mut().zip(&pivot_row[col..]) {
+                *x -= f * p;
             }
             b[r] -= f * b[col];
         }

@@ -6,9 +6,9 @@ use std::sync::Arc;
 use dex_runtime::interface::{OBS_DIM, OBSERVATION_FIELDS};
 use mujoco_rs::prelude::*;
 
-use super::scene::{ARM_JOINTS, SceneIds};
 #[cfg(test)]
 use super::scene::FINGER_JOINTS;
+use super::scene::{ARM_JOINTS, SceneIds};
 
 /// One observation: 44 `f32` values laid out as `OBSERVATION_FIELDS` says.
 pub type Observation = [f32; OBS_DIM];
