@@ -55,6 +55,12 @@ pub trait Platform {
 
     /// Runs `f`; returns its result and the guest instructions it took, where measurable.
     fn measure<R>(&mut self, f: impl FnOnce() -> R) -> (R, Option<u32>);
+
+    /// Ends a phase of the run: a board reports the deepest stack use since the previous
+    /// checkpoint (or boot) under `phase` and starts measuring afresh. The host does nothing.
+    fn stack_checkpoint(&mut self, phase: &str) {
+        let _ = phase;
+    }
 }
 
 /// Why the firmware stopped in its fault state.
@@ -218,7 +224,7 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
         p.line(format_args!("L {i} {}x{}", l.inputs, l.outputs));
     }
     let steps = TRACE.0.len() / (OBS_DIM * 4);
-    if steps == 0 || TRACE.0.len() % (OBS_DIM * 4) != 0 {
+    if steps == 0 || !TRACE.0.len().is_multiple_of(OBS_DIM * 4) {
         return Err(Fault::Trace { len: TRACE.0.len() });
     }
     let mut summary = Summary {
@@ -227,26 +233,53 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
     };
     // Overhead of the measurement itself, taken off every count.
     let ((), overhead) = p.measure(|| ());
-    let net = |n: Option<u32>| n.map(|v| v.saturating_sub(overhead.unwrap_or(0)));
+    p.stack_checkpoint("decode");
+    let overhead = overhead.unwrap_or(0);
+    // Two separate frames, so the stack peak is the larger of the two paths, not their sum.
+    summary.mlp = replay_evaluator(p, &view, steps, overhead)?;
+    summary.controller = replay_controller(p, &view, steps, overhead)?;
+    Ok(summary)
+}
 
-    // 1. The evaluator alone, on the exact f32 observations.
-    let mut mlp = Mlp::<WIDTH>::new(&view).map_err(Fault::Policy)?;
+/// Path 1: the evaluator alone, on the exact f32 observations (`A` lines).
+#[inline(never)]
+fn replay_evaluator(
+    p: &mut impl Platform,
+    view: &PolicyView<'static>,
+    steps: usize,
+    overhead: u32,
+) -> Result<Stats, Fault> {
+    let mut stats = Stats::default();
+    let mut mlp = Mlp::<WIDTH>::new(view).map_err(Fault::Policy)?;
+    p.stack_checkpoint("evaluator-load");
     for step in 0..steps {
         let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
         let mut action = [0.0f32; ACT_DIM];
         let (result, n) = p.measure(|| mlp.act(&obs, &mut action));
         result.map_err(|error| Fault::Eval { step, error })?;
-        summary.mlp.add(net(n));
+        stats.add(n.map(|v| v.saturating_sub(overhead)));
         p.line(format_args!("A {step} {}", Bits(&action)));
     }
+    p.stack_checkpoint("evaluator-steps");
+    Ok(stats)
+}
 
-    // 2. The full controller: CAN frames in, CAN frames out, one period per step.
+/// Path 2: the full controller, CAN frames in and out, one control period per step (`C` lines).
+#[inline(never)]
+fn replay_controller(
+    p: &mut impl Platform,
+    view: &PolicyView<'static>,
+    steps: usize,
+    overhead: u32,
+) -> Result<Stats, Fault> {
+    let mut stats = Stats::default();
     let cfg = ControllerConfig::default();
     let mut ctrl = Controller::<WIDTH>::new(cfg);
-    ctrl.load_policy(&view).map_err(Fault::Load)?;
+    ctrl.load_policy(view).map_err(Fault::Load)?;
     let clock = MockClock::new(0);
     ctrl.poll(&clock);
     ctrl.on_frame(&nmt_frame(NmtCommand::Start, cfg.node_id), &clock);
+    p.stack_checkpoint("controller-load");
     let mut senders = [E2eSender::default(); OBS_FRAMES];
     for step in 0..steps {
         let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
@@ -263,7 +296,7 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
             }
             sent
         });
-        summary.controller.add(net(n));
+        stats.add(n.map(|v| v.saturating_sub(overhead)));
         if ctrl.state() != State::Operational {
             return Err(Fault::Controller {
                 step,
@@ -284,5 +317,6 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
             Bits(ctrl.last_action())
         ));
     }
-    Ok(summary)
+    p.stack_checkpoint("controller-steps");
+    Ok(stats)
 }

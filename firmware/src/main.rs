@@ -17,15 +17,19 @@ use cortex_m_semihosting::hio::{self, HostStream};
 use dex_firmware::{Platform, Summary};
 use panic_semihosting as _;
 
-/// SysTick input clock on the board, in Hz (QEMU's mps2 boards: 25 MHz), if known.
+/// SysTick's processor clock as QEMU models the board, in Hz (mps2: 25 MHz).
 #[cfg(dex_board = "mps2-an386")]
-const SYSTICK_HZ: Option<u64> = Some(25_000_000);
-/// SysTick input clock on the board, in Hz: not modelled the same way here, so only raw ticks.
+const SYSTICK_HZ: u64 = 25_000_000;
+/// SysTick's processor clock as QEMU models the board, in Hz (STM32F405 SYSCLK: 168 MHz; the
+/// 24-bit counter then wraps after ~1.5M instructions at shift 6).
 #[cfg(not(dex_board = "mps2-an386"))]
-const SYSTICK_HZ: Option<u64> = None;
+const SYSTICK_HZ: u64 = 168_000_000;
 
 /// QEMU's `-icount shift` the instruction conversion assumes: one instruction = 2^shift ns.
 const ICOUNT_SHIFT: u32 = 6;
+
+/// Start of RAM on both boards (`.data`/`.bss` begin here).
+const RAM_ORIGIN: usize = 0x2000_0000;
 
 /// The SysTick counter is 24 bits wide.
 const SYST_MASK: u32 = 0x00FF_FFFF;
@@ -34,14 +38,16 @@ const SYST_MASK: u32 = 0x00FF_FFFF;
 struct Board {
     out: Option<HostStream>,
     syst: SYST,
+    painted: stack::Painted,
+    /// Deepest stack use over all finished phases, in bytes.
+    stack_peak: usize,
 }
 
 impl Board {
     /// SysTick ticks to guest instructions under `-icount shift=ICOUNT_SHIFT`.
     fn instructions(ticks: u32) -> Option<u32> {
-        let hz = SYSTICK_HZ?;
-        let ns_per_tick = 1_000_000_000 / hz;
-        u32::try_from(u64::from(ticks) * ns_per_tick >> ICOUNT_SHIFT).ok()
+        let ns = u64::from(ticks) * 1_000_000_000 / SYSTICK_HZ;
+        u32::try_from(ns >> ICOUNT_SHIFT).ok()
     }
 }
 
@@ -61,6 +67,13 @@ impl Platform for Board {
         // SysTick counts down and wraps at 24 bits (after ~10M instructions at shift 6).
         let ticks = start.wrapping_sub(end) & SYST_MASK;
         (r, Self::instructions(ticks))
+    }
+
+    fn stack_checkpoint(&mut self, phase: &str) {
+        let used = stack::high_water(self.painted);
+        self.stack_peak = self.stack_peak.max(used);
+        self.line(format_args!("S {phase} stack_used={used}"));
+        self.painted = stack::paint();
     }
 }
 
@@ -121,12 +134,8 @@ mod stack {
 }
 
 /// Reports and exits QEMU with `status`; spins only if no debugger answers semihosting.
-fn finish(
-    board: &mut Board,
-    result: Result<Summary, dex_firmware::Fault>,
-    stack: stack::Painted,
-) -> ! {
-    let used = stack::high_water(stack);
+fn finish(board: &mut Board, result: Result<Summary, dex_firmware::Fault>) -> ! {
+    let used = stack::high_water(board.painted).max(board.stack_peak);
     let status = match result {
         Ok(s) => {
             for (name, st) in [("mlp", s.mlp), ("controller", s.controller)] {
@@ -141,16 +150,16 @@ fn finish(
                 }
             }
             board.line(format_args!(
-                "S stack_used={used} stack_capacity={} static_ram={}",
-                stack.stack_top - stack.bottom,
-                stack.bottom - 0x2000_0000,
+                "S peak stack_used={used} stack_capacity={} static_ram={}",
+                board.painted.stack_top - board.painted.bottom,
+                board.painted.bottom - RAM_ORIGIN,
             ));
             board.line(format_args!("END ok steps={}", s.steps));
             EXIT_SUCCESS
         }
         Err(fault) => {
             board.line(format_args!("FAULT {fault}"));
-            board.line(format_args!("S stack_used={used}"));
+            board.line(format_args!("S peak stack_used={used}"));
             EXIT_FAILURE
         }
     };
@@ -177,11 +186,14 @@ fn main() -> ! {
     let mut board = Board {
         out,
         syst: core.SYST,
+        painted,
+        stack_peak: 0,
     };
-    #[cfg(feature = "hardfault-test")]
-    cortex_m::asm::udf();
+    if cfg!(feature = "hardfault-test") {
+        cortex_m::asm::udf();
+    }
     let result = dex_firmware::run(&mut board);
-    finish(&mut board, result, painted)
+    finish(&mut board, result)
 }
 
 /// Any fault ends the run with a non-zero exit status instead of cortex-m-rt's endless loop.

@@ -1,0 +1,225 @@
+#!/usr/bin/env bash
+# Firmware check: builds firmware/ for thumbv7em-none-eabihf, runs it under QEMU and proves that the
+# Cortex-M4F computes exactly the host's actions; checks footprint, fault paths and the instruction
+# budget. Exits non-zero, loudly, on any mismatch, fault or missing tool. See docs/firmware.md.
+#
+#   scripts/firmware-check.sh            # everything (about 1 min warm, 3 min cold)
+#   FIRMWARE_EXTRA_POLICY=path.dxpl scripts/firmware-check.sh   # also a trained policy, bit for bit
+#   FIRMWARE_BLESS=1 scripts/firmware-check.sh   # rewrite firmware/budget.txt from this run
+#
+# Cases:
+#   1. golden 44-64-64-9 policy on mps2-an386: every action bit equals runtime/tests/golden/actions_64.f32,
+#      and the evaluator and controller lines equal the host twin's (fw-host reference).
+#   2. default-size 44-256-256-9 policy on mps2-an386: equal to the host twin; instructions per step
+#      within 10% of firmware/budget.txt; footprint by section.
+#   3. the same policy on netduinoplus2 (STM32F405 map: 1 MB flash, 128 KB RAM): equal to the host twin.
+#   4. a corrupted policy file: the fault state, reported, exit status non-zero, no hang.
+#   5. an undefined instruction at boot: the HardFault handler reports and exits non-zero.
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+FW="$ROOT/firmware"
+TARGET=thumbv7em-none-eabihf
+WORK="$FW/target/check"
+QEMU_TIMEOUT=${QEMU_TIMEOUT:-60}
+TOLERANCE_PCT=10
+
+die() {
+    echo "firmware-check: FAIL: $*" >&2
+    exit 1
+}
+step() { echo "== firmware-check: $*"; }
+
+# --- tools ---------------------------------------------------------------------------------------
+need_apt=()
+command -v qemu-system-arm >/dev/null || need_apt+=(qemu-system-arm)
+command -v arm-none-eabi-size >/dev/null || need_apt+=(binutils-arm-none-eabi)
+if ((${#need_apt[@]})); then
+    step "installing ${need_apt[*]}"
+    SUDO=""
+    if [ "$(id -u)" != 0 ]; then
+        command -v sudo >/dev/null || die "need ${need_apt[*]} and neither root nor sudo to install them"
+        SUDO=sudo
+    fi
+    $SUDO apt-get install -y --no-install-recommends "${need_apt[@]}" >/dev/null ||
+        { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y --no-install-recommends "${need_apt[@]}" >/dev/null; } ||
+        die "apt-get install ${need_apt[*]} failed"
+fi
+for tool in qemu-system-arm arm-none-eabi-size python3 cargo rustup timeout; do
+    command -v "$tool" >/dev/null || die "missing tool: $tool"
+done
+# RUSTUP_AUTO_INSTALL=0 here: rust-toolchain.toml's `targets` is not enough (FACTS 5).
+rustup target add "$TARGET" >/dev/null 2>&1 || die "rustup target add $TARGET failed"
+HOST=$(rustc -vV | sed -n 's/^host: //p')
+[ -n "$HOST" ] || die "cannot tell the host target"
+mkdir -p "$WORK"
+
+# --- helpers -------------------------------------------------------------------------------------
+# build_fw OUT_ELF POLICY BOARD [cargo args...]: builds the firmware with POLICY embedded.
+build_fw() {
+    local out=$1 policy=$2 board=$3
+    shift 3
+    (cd "$FW" && DEX_POLICY="$policy" DEX_TRACE="" DEX_BOARD="$board" \
+        cargo build --release --quiet --target "$TARGET" -p dex-firmware "$@") ||
+        die "firmware build failed (policy $policy, board $board)"
+    cp "$FW/target/$TARGET/release/dex-firmware" "$out"
+}
+
+# host_ref OUT POLICY: the host twin's report for POLICY.
+host_ref() {
+    local out=$1 policy=$2
+    (cd "$FW" && DEX_POLICY="$policy" DEX_TRACE="" \
+        cargo build --release --quiet --target "$HOST" -p dex-firmware-host) ||
+        die "host twin build failed (policy $policy)"
+    "$FW/target/$HOST/release/fw-host" reference >"$out" || die "host twin failed: $(tail -1 "$out")"
+}
+
+# run_qemu ELF BOARD LOG: runs under timeout; echoes QEMU's exit status.
+run_qemu() {
+    local elf=$1 board=$2 log=$3 rc=0 cpu=()
+    [ "$board" = mps2-an386 ] && cpu=(-cpu cortex-m4)
+    timeout "$QEMU_TIMEOUT" qemu-system-arm -machine "$board" "${cpu[@]}" -display none \
+        -semihosting-config enable=on,target=native -icount shift=6 -kernel "$elf" \
+        </dev/null >"$log" 2>&1 || rc=$?
+    echo "$rc"
+}
+
+# expect_ok RC LOG WHAT
+expect_ok() {
+    [ "$1" = 0 ] || { tail -5 "$2" >&2; die "$3: QEMU exit status $1 (124 = timeout, a hang)"; }
+    grep -q '^END ok' "$2" || die "$3: no END line"
+}
+
+# same_as_host QEMU_LOG HOST_LOG WHAT: layer, evaluator and controller lines identical.
+same_as_host() {
+    local n
+    n=$(grep -c '^[AC] ' "$1" || true)
+    [ "$n" -gt 0 ] || die "$3: no action lines from QEMU"
+    diff <(grep -E '^(L|A|C) ' "$2") <(grep -E '^(L|A|C) ' "$1") >"$WORK/diff.txt" ||
+        { head -20 "$WORK/diff.txt" >&2; die "$3: QEMU output differs from the host twin"; }
+    echo "   $3: $n action lines bit-identical to the host twin"
+}
+
+# --- 1. golden policy ----------------------------------------------------------------------------
+GOLDEN="$ROOT/runtime/tests/golden"
+step "1/5 golden 44-64-64-9 policy on mps2-an386"
+build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
+expect_ok "$rc" "$WORK/golden.log" golden
+python3 - "$WORK/golden.log" "$GOLDEN/actions_64.f32" <<'EOF' || die "golden: actions differ from actions_64.f32"
+import struct, sys
+log, golden = sys.argv[1], sys.argv[2]
+def canon(bits):  # NaN payloads differ between x86 and Arm: compare all NaNs as one
+    return 0x7FC00000 if (bits & 0x7F800000) == 0x7F800000 and bits & 0x007FFFFF else bits
+raw = open(golden, "rb").read()
+want = [canon(b) for b in struct.unpack("<%dI" % (len(raw) // 4), raw)]
+rows = [l.split() for l in open(log) if l.startswith("A ")]
+if len(rows) * 9 != len(want):
+    sys.exit(f"{len(rows)} steps from QEMU, {len(want) // 9} in the golden file")
+bad = 0
+for r in rows:
+    s = int(r[1]); got = [canon(int(x, 16)) for x in r[2:]]
+    if got != want[9 * s: 9 * s + 9]:
+        bad += 1
+        print(f"step {s}: got {' '.join('%08x' % g for g in got)}", file=sys.stderr)
+        print(f"step {s}: want {' '.join('%08x' % w for w in want[9 * s: 9 * s + 9])}", file=sys.stderr)
+if bad:
+    sys.exit(f"{bad} of {len(rows)} steps differ")
+print(f"   golden: all {len(want)} action values bit-identical to actions_64.f32")
+EOF
+host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
+same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
+
+# --- 2. default-size policy, budget and footprint -------------------------------------------------
+step "2/5 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
+(cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
+"$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
+    die "make-policy failed"
+build_fw "$WORK/p256.elf" "$WORK/jaco_256.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/p256.elf" mps2-an386 "$WORK/p256.log")
+expect_ok "$rc" "$WORK/p256.log" "44-256-256-9"
+host_ref "$WORK/p256.host" "$WORK/jaco_256.dxpl"
+same_as_host "$WORK/p256.log" "$WORK/p256.host" "44-256-256-9"
+grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
+
+BUDGET="$FW/budget.txt"
+mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] || die "no instruction counts in the QEMU output"
+if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
+    {
+        echo "# Guest instructions per control step (worst step of the golden trace) under QEMU"
+        echo "# -icount shift=6 on mps2-an386, default-size 44-256-256-9 policy (fw-host make-policy 256,256 3)."
+        echo "# scripts/firmware-check.sh fails when a measurement exceeds its budget by more than ${TOLERANCE_PCT}%."
+        echo "# Re-bless only on purpose: FIRMWARE_BLESS=1 scripts/firmware-check.sh"
+        echo "mlp_step $mlp_max"
+        echo "controller_step $ctrl_max"
+    } >"$BUDGET"
+    echo "   blessed $BUDGET"
+fi
+[ -f "$BUDGET" ] || die "no budget file $BUDGET (FIRMWARE_BLESS=1 writes one)"
+check_budget() {
+    local name=$1 got=$2 budget
+    budget=$(awk -v k="$name" '$1 == k { print $2 }' "$BUDGET")
+    [ -n "$budget" ] || die "budget file has no $name"
+    local limit=$((budget + budget * TOLERANCE_PCT / 100))
+    [ "$got" -le "$limit" ] ||
+        die "$name: $got instructions per step, budget $budget (+${TOLERANCE_PCT}% = $limit): a regression"
+    echo "   $name: $got instructions (budget $budget, limit $limit) ok"
+}
+check_budget mlp_step "$mlp_max"
+check_budget controller_step "$ctrl_max"
+
+policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
+trace_bytes=$(stat -c %s "$GOLDEN/obs_trace.f32")
+arm-none-eabi-size -A "$WORK/p256.elf" | awk -v pol="$policy_bytes" -v tr="$trace_bytes" '
+    $1 ~ /^\.(vector_table|text|rodata|data|bss|uninit)$/ { s[$1] = $2 }
+    END {
+        flash = s[".vector_table"] + s[".text"] + s[".rodata"] + s[".data"]
+        printf "   footprint: flash %d B = .vector_table %d + .text %d + .rodata %d (policy file %d, trace %d, other %d) + .data %d\n",
+            flash, s[".vector_table"], s[".text"], s[".rodata"], pol, tr, s[".rodata"] - pol - tr, s[".data"]
+        printf "   footprint: static RAM .data %d + .bss %d + .uninit %d B (stack: see S lines)\n",
+            s[".data"], s[".bss"], s[".uninit"]
+    }'
+
+# --- 3. second board ------------------------------------------------------------------------------
+step "3/5 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
+build_fw "$WORK/nd.elf" "$WORK/jaco_256.dxpl" netduinoplus2
+rc=$(run_qemu "$WORK/nd.elf" netduinoplus2 "$WORK/nd.log")
+expect_ok "$rc" "$WORK/nd.log" netduinoplus2
+same_as_host "$WORK/nd.log" "$WORK/p256.host" netduinoplus2
+
+if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
+    step "extra policy $FIRMWARE_EXTRA_POLICY on mps2-an386"
+    extra=$(cd "$ROOT" && realpath "$FIRMWARE_EXTRA_POLICY")
+    build_fw "$WORK/extra.elf" "$extra" mps2-an386
+    rc=$(run_qemu "$WORK/extra.elf" mps2-an386 "$WORK/extra.log")
+    expect_ok "$rc" "$WORK/extra.log" "extra policy"
+    host_ref "$WORK/extra.host" "$extra"
+    same_as_host "$WORK/extra.log" "$WORK/extra.host" "extra policy"
+fi
+
+# --- 4. corrupted policy: the fault state ---------------------------------------------------------
+step "4/5 corrupted policy file: fault state, non-zero exit, no hang"
+python3 - "$GOLDEN/jaco_64.dxpl" "$WORK/corrupt.dxpl" <<'EOF'
+import sys
+b = bytearray(open(sys.argv[1], "rb").read())
+b[len(b) // 2] ^= 0x01  # one bit in the weights: the CRC must catch it
+open(sys.argv[2], "wb").write(b)
+EOF
+build_fw "$WORK/corrupt.elf" "$WORK/corrupt.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/corrupt.elf" mps2-an386 "$WORK/corrupt.log")
+[ "$rc" = 1 ] || die "corrupted policy: exit status $rc, want 1 (124 = hang)"
+grep -q '^FAULT policy file rejected' "$WORK/corrupt.log" || die "corrupted policy: no FAULT report"
+grep -q '^[AC] ' "$WORK/corrupt.log" && die "corrupted policy: actions were produced"
+echo "   $(grep '^FAULT' "$WORK/corrupt.log") (exit $rc)"
+
+# --- 5. HardFault -----------------------------------------------------------------------------------
+step "5/5 HardFault handler exits non-zero"
+build_fw "$WORK/hardfault.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features hardfault-test
+rc=$(run_qemu "$WORK/hardfault.elf" mps2-an386 "$WORK/hardfault.log")
+[ "$rc" = 1 ] || die "hardfault test: exit status $rc, want 1 (124 = hang)"
+grep -q '^FAULT hardfault' "$WORK/hardfault.log" || die "hardfault test: no FAULT report"
+echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
+
+echo "firmware-check: OK"
