@@ -141,20 +141,26 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
             let z = (x - mean[i]) / scale[i];
             self.front[i] = z.clamp(-self.clip, self.clip);
         }
-        for layer in &self.layers {
+        // Ping-pong between the two buffers: even layers read `front`, odd layers read `back`.
+        for (l, layer) in self.layers.iter().enumerate() {
             let w = &self.values[layer.weights..layer.biases];
             let b = &self.values[layer.biases..layer.biases + layer.outputs];
-            dense(
-                &self.front[..layer.inputs],
-                w,
-                b,
-                &mut self.back[..layer.outputs],
-            );
-            activate(layer.activation, &mut self.back[..layer.outputs]);
-            core::mem::swap(&mut self.front, &mut self.back);
+            let (src, dst) = if l % 2 == 0 {
+                (&self.front, &mut self.back)
+            } else {
+                (&self.back, &mut self.front)
+            };
+            let dst = &mut dst[..layer.outputs];
+            dense(&src[..layer.inputs], w, b, dst);
+            activate(layer.activation, dst);
         }
+        let result = if self.layers.len() % 2 == 1 {
+            &self.back
+        } else {
+            &self.front
+        };
         for (j, (out, map)) in action.iter_mut().zip(&self.joints).enumerate() {
-            let y = self.front[j];
+            let y = result[j];
             if !y.is_finite() {
                 return Err(EvalError::NonFiniteAction { index: j });
             }
@@ -164,14 +170,38 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
     }
 }
 
+/// Outputs computed together in registers by [`dense`].
+const BLOCK: usize = 16;
+
 /// `out = bias + sum_i w[i] * input[i]` with weights input-major (`w[i * outputs + j]`).
-#[inline]
+///
+/// Hand-written kernel (measured: the plain axpy loop stores and reloads every output once per
+/// input; keeping a block of 16 outputs in registers across all inputs is ~2x faster on the host).
+/// Each output still sums `bias + w0*x0 + w1*x1 + ...` in input order, so results are bit-identical
+/// to the scalar loop on every target. Kept out of line so the arguments are known not to alias.
+#[inline(never)]
 fn dense(input: &[f32], w: &[f32], bias: &[f32], out: &mut [f32]) {
-    out.copy_from_slice(bias);
     let outputs = out.len();
-    for (x, row) in input.iter().zip(w.chunks_exact(outputs)) {
-        for (o, wv) in out.iter_mut().zip(row) {
-            *o += wv * x;
+    let mut j0 = 0;
+    while j0 + BLOCK <= outputs {
+        let mut acc = [0.0f32; BLOCK];
+        acc.copy_from_slice(&bias[j0..j0 + BLOCK]);
+        for (x, row) in input.iter().zip(w.chunks_exact(outputs)) {
+            let row = &row[j0..j0 + BLOCK];
+            for (a, wv) in acc.iter_mut().zip(row) {
+                *a += wv * x;
+            }
+        }
+        out[j0..j0 + BLOCK].copy_from_slice(&acc);
+        j0 += BLOCK;
+    }
+    if j0 < outputs {
+        let tail = &mut out[j0..];
+        tail.copy_from_slice(&bias[j0..]);
+        for (x, row) in input.iter().zip(w.chunks_exact(outputs)) {
+            for (o, wv) in tail.iter_mut().zip(&row[j0..]) {
+                *o += wv * x;
+            }
         }
     }
 }

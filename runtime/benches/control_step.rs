@@ -1,0 +1,75 @@
+//! Criterion benchmarks: the forward pass of the 48-256-256-9 MLP alone, and one whole control
+//! step (15 observation frames decoded and checked, 44-256-256-9 forward pass, 3 action frames
+//! encoded). `cargo bench -p dex-runtime --bench control_step`
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)] // benchmark harness
+
+use criterion::{Criterion, black_box, criterion_group, criterion_main};
+use dex_policy::synth::{SynthSpec, synth_policy};
+use dex_policy::{Activation, PolicyView, Task};
+use dex_runtime::can::e2e::E2eSender;
+use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
+use dex_runtime::interface::ACT_DIM;
+use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
+use dex_runtime::{Controller, ControllerConfig, MockClock, Mlp};
+
+/// The reference network: 48 inputs, two hidden ReLU layers of 256, 9 tanh outputs.
+pub fn mlp_48_256_256_9() -> Vec<u8> {
+    let action: Vec<(&str, f32, f32, f32)> = (0..ACT_DIM)
+        .map(|_| ("joint", 1.0, -1.0, 1.0))
+        .collect();
+    synth_policy(&SynthSpec {
+        task: Task::Stack,
+        observation: &[("obs", 48)],
+        action: &action,
+        hidden: &[256, 256],
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Tanh,
+        seed: 1,
+    })
+    .unwrap()
+}
+
+fn forward(c: &mut Criterion) {
+    let file = aligned_copy(&mlp_48_256_256_9());
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut mlp = Mlp::<256>::new(&view).unwrap();
+    let obs: Vec<f32> = (0..48).map(|i| (i as f32 * 0.37).sin()).collect();
+    let mut action = [0.0f32; ACT_DIM];
+    c.bench_function("forward_48_256_256_9", |b| {
+        b.iter(|| {
+            mlp.act(black_box(&obs), &mut action).unwrap();
+            black_box(&action);
+        })
+    });
+}
+
+fn control_step(c: &mut Criterion) {
+    let file = aligned_copy(&jaco_policy(&[256, 256], 1).unwrap());
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let clock = MockClock::new(0);
+    let mut controller = Controller::<256>::new(ControllerConfig::default());
+    controller.poll(&clock);
+    controller.load_policy(&view).unwrap();
+    controller.on_frame(&nmt_frame(NmtCommand::Start, 0), &clock);
+    let trace = observation_trace(16, 3);
+    let mut tx = [E2eSender::default(); OBS_FRAMES];
+    // Frames are prepared outside the timed loop: the plant makes them, not the controller.
+    let cycles: Vec<_> = (0..240u32)
+        .map(|n| encode_observation(&trace[n as usize % 16], n as u8, &mut tx))
+        .collect();
+    let mut n = 0usize;
+    c.bench_function("control_step_44_256_256_9", |b| {
+        b.iter(|| {
+            let frames = &cycles[n % cycles.len()];
+            n += 1;
+            let mut sent = 0;
+            for f in frames {
+                sent += controller.on_frame(black_box(f), &clock).len();
+            }
+            assert_eq!(sent, 3);
+        })
+    });
+}
+
+criterion_group!(benches, forward, control_step);
+criterion_main!(benches);

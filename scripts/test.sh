@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# README command two: all set-up on a fresh machine, then every test. `.ci/run` calls this.
+# Fails loudly at the first missing tool or failing step.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+start=$(date +%s)
+step() { printf '\n==> [%4ss] %s\n' "$(( $(date +%s) - start ))" "$*"; }
+need() { command -v "$1" >/dev/null || { echo "error: '$1' not found: $2" >&2; exit 1; }; }
+
+step "toolchain"
+need cargo "install Rust with rustup (the pinned toolchain is in rust-toolchain.toml)"
+need rustup "install Rust with rustup"
+need python3 "install Python 3 (Debian: apt-get install python3 python3-venv)"
+# RUSTUP_AUTO_INSTALL=0 on these machines: the toolchain file alone does not install the target.
+rustup target add thumbv7em-none-eabihf >/dev/null
+cargo --version
+
+step "MuJoCo and Jaco assets (scripts/setup-mujoco.sh)"
+bash scripts/setup-mujoco.sh
+
+step "Python harness (scripts/setup-python.sh)"
+bash scripts/setup-python.sh
+
+step "cargo fmt --check"
+cargo fmt --all -- --check
+
+step "cargo clippy -D warnings"
+cargo clippy --workspace --all-targets --all-features --locked -- -D warnings
+
+step "cargo test"
+cargo test --workspace --all-features --locked
+
+step "no_std build for thumbv7em-none-eabihf (runtime, policy-format)"
+cargo build -p dex-runtime -p dex-policy --target thumbv7em-none-eabihf --no-default-features --release --locked
+
+step "fuzz targets build (fuzz/, stable check)"
+cargo check --manifest-path fuzz/Cargo.toml --bins --locked
+
+step "firmware under QEMU (scripts/firmware-check.sh)"
+bash scripts/firmware-check.sh
+
+step "python harness (pytest)"
+.venv/bin/python -m pytest -q tests/
+
+step "all green"
