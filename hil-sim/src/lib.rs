@@ -1,3 +1,23 @@
-//! Software-in-the-loop: a virtual CAN bus, the plant and the controller node.
+//! `dex-hil-sim`: software-in-the-loop for the controller, over a virtual CAN bus.
 //!
-//! Filled in by the software-in-the-loop issue; see `ARCHITECTURE.md`.
+//! - [`bus`]: a TCP server speaking the socketcand subset that python-can's `socketcand` interface
+//!   needs ([`protocol`]); one global frame order, bus-time stamps, per-client bounded queues,
+//!   fault injection (drop, corrupt, delay, bus-off) and a candump log.
+//! - [`client`]: a socketcand client implementing `embedded_can::blocking::Can`: the adapter that
+//!   puts a node on the bus.
+//! - [`node`]: the controller node, the `dex_runtime::Controller` a microcontroller runs, in
+//!   real-time (wall clock) or lockstep (bus time, SYNC-driven) mode.
+//! - [`plant`]: the plant node (synthetic plant, or the MuJoCo environment with feature `mujoco`)
+//!   that sends observations every 50 ms and applies the newest valid action; also the NMT master.
+//! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
+//!
+//! Not here: real SocketCAN hardware (no `AF_CAN` on the development machines) and policy flashing
+//! (see `docs/sil.md`).
+#![deny(missing_docs)]
+
+pub mod bench;
+pub mod bus;
+pub mod client;
+pub mod node;
+pub mod plant;
+pub mod protocol;

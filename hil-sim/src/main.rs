@@ -1,0 +1,374 @@
+//! `hil-sim`: the virtual CAN bus, closed-loop runs over it, and the latency benchmark.
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand, ValueEnum};
+use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
+use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
+use dex_hil_sim::node::{TimeMode, spawn_controller_node};
+use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant};
+
+#[derive(Parser)]
+#[command(
+    name = "hil-sim",
+    about = "Software-in-the-loop over a virtual CAN bus"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+enum PlantKind {
+    /// Kinematic stand-in (no MuJoCo).
+    Synthetic,
+    /// The MuJoCo Jaco environment (feature `mujoco`).
+    Mujoco,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run only the bus (and optionally the controller node) until `< quit >` or --seconds.
+    Bus {
+        /// Port on 127.0.0.1 (0: a free one; the chosen one is printed).
+        #[arg(long, default_value_t = 0)]
+        port: u16,
+        /// candump-format log.
+        #[arg(long)]
+        log: Option<PathBuf>,
+        /// Run the controller node with this policy file (a refused file leaves it pre-operational).
+        #[arg(long)]
+        policy: Option<PathBuf>,
+        /// Run the controller node without a policy.
+        #[arg(long)]
+        controller: bool,
+        /// Exit after this many seconds.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Frames queued per client before frames to it are dropped.
+        #[arg(long, default_value_t = 4096)]
+        queue: usize,
+    },
+    /// Closed-loop episodes: plant node and controller node over the bus.
+    Run {
+        /// Policy file.
+        #[arg(long)]
+        policy: PathBuf,
+        /// Episodes.
+        #[arg(long, default_value_t = 1)]
+        episodes: u32,
+        /// Seed of the first episode (episode i uses seed + i).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
+        #[arg(long, default_value = "stack")]
+        task: String,
+        /// Which plant.
+        #[arg(long, value_enum, default_value_t = PlantKind::Mujoco)]
+        plant: PlantKind,
+        /// Wall clock at 20 Hz instead of lockstep.
+        #[arg(long)]
+        realtime: bool,
+        /// Steps per episode for the synthetic plant (the MuJoCo plant uses the task's length).
+        #[arg(long, default_value_t = 150)]
+        steps: u32,
+        /// candump-format log.
+        #[arg(long)]
+        log: Option<PathBuf>,
+    },
+    /// Observation-to-action latency through the bus, period jitter, bus load.
+    Bench {
+        /// Cycles.
+        #[arg(long, default_value_t = 10_000)]
+        cycles: usize,
+        /// Pace at 20 Hz wall clock (period jitter, missed cycles) instead of back to back.
+        #[arg(long)]
+        realtime: bool,
+        /// Policy file (default: random 44-256-256-9 policy on the cell's layout).
+        #[arg(long)]
+        policy: Option<PathBuf>,
+    },
+    /// Write a random-weight policy file on the cell's layout (or a mismatched one) for tests.
+    MakePolicy {
+        /// Output file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Hidden widths, comma-separated.
+        #[arg(long, default_value = "64,64", value_delimiter = ',')]
+        hidden: Vec<u16>,
+        /// Weight seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Write a policy whose observation layout does not match the controller's.
+        #[arg(long)]
+        mismatched_layout: bool,
+    },
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Bus {
+            port,
+            log,
+            policy,
+            controller,
+            seconds,
+            queue,
+        } => bus_command(port, log, policy, controller, seconds, queue),
+        Command::Run {
+            policy,
+            episodes,
+            seed,
+            task,
+            plant,
+            realtime,
+            steps,
+            log,
+        } => run_command(&policy, episodes, seed, &task, plant, realtime, steps, log),
+        Command::Bench {
+            cycles,
+            realtime,
+            policy,
+        } => bench_command(cycles, realtime, policy),
+        Command::MakePolicy {
+            out,
+            hidden,
+            seed,
+            mismatched_layout,
+        } => make_policy(&out, &hidden, seed, mismatched_layout),
+    }
+}
+
+fn bus_command(
+    port: u16,
+    log: Option<PathBuf>,
+    policy: Option<PathBuf>,
+    controller: bool,
+    seconds: Option<f64>,
+    queue: usize,
+) -> Result<()> {
+    let bus = Bus::start(BusConfig {
+        addr: SocketAddr::from(([127, 0, 0, 1], port)),
+        log,
+        queue_depth: queue,
+        ..BusConfig::default()
+    })?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let node = if controller || policy.is_some() {
+        let bytes = match &policy {
+            Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
+            None => None,
+        };
+        Some(spawn_controller_node(
+            bus.addr(),
+            bytes,
+            TimeMode::RealTime,
+            Arc::clone(&stop),
+            Some(bus.status_slot()),
+        )?)
+    } else {
+        None
+    };
+    println!("hil-sim bus listening on {}", bus.addr());
+    std::io::stdout().flush()?;
+    let start = Instant::now();
+    while !bus.quit_requested() && seconds.is_none_or(|s| start.elapsed().as_secs_f64() < s) {
+        if node.as_ref().is_some_and(|n| n.is_finished()) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    stop.store(true, Ordering::SeqCst);
+    if let Some(n) = node {
+        match n.join() {
+            Ok(Ok(report)) => eprintln!("controller node: {:?}", report.diagnostics),
+            Ok(Err(e)) => eprintln!("controller node failed: {e}"),
+            Err(_) => eprintln!("controller node panicked"),
+        }
+    }
+    eprintln!("bus: {:?}", bus.stats());
+    bus.shutdown();
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_command(
+    policy: &PathBuf,
+    episodes: u32,
+    seed: u64,
+    task: &str,
+    plant_kind: PlantKind,
+    realtime: bool,
+    steps: u32,
+    log: Option<PathBuf>,
+) -> Result<()> {
+    let bytes = std::fs::read(policy).with_context(|| format!("reading {}", policy.display()))?;
+    let mut plant = make_plant(plant_kind, task, steps)?;
+    let bus = Bus::start(BusConfig {
+        clock: if realtime {
+            BusClock::Wall
+        } else {
+            BusClock::Virtual
+        },
+        log,
+        ..BusConfig::default()
+    })?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let mode = if realtime {
+        TimeMode::RealTime
+    } else {
+        TimeMode::Lockstep
+    };
+    let status = bus.status_slot();
+    let node = spawn_controller_node(
+        bus.addr(),
+        Some(bytes),
+        mode,
+        Arc::clone(&stop),
+        Some(Arc::clone(&status)),
+    )?;
+    let timing = if realtime {
+        PlantTiming::RealTime
+    } else {
+        PlantTiming::Lockstep
+    };
+    let result = (|| -> Result<(u32, f64)> {
+        let mut node = PlantNode::connect(&bus, timing, 0x10)?;
+        node.start_controller()?;
+        let mut successes = 0;
+        let mut total = 0.0;
+        for e in 0..episodes {
+            let r = node.episode(plant.as_mut(), seed + u64::from(e), u32::MAX)?;
+            println!(
+                "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
+                r.seed, r.episode_return, r.success, r.steps, r.steps_without_action
+            );
+            successes += u32::from(r.success);
+            total += r.episode_return;
+        }
+        if !node.emergencies().is_empty() {
+            println!("emergencies: {:04X?}", node.emergencies());
+        }
+        Ok((successes, total))
+    })();
+    stop.store(true, Ordering::SeqCst);
+    let _ = node.join();
+    let (successes, total) = result?;
+    println!(
+        "success {successes}/{episodes} ({:.1}%) mean return {:.4} mode {}",
+        100.0 * f64::from(successes) / f64::from(episodes.max(1)),
+        total / f64::from(episodes.max(1)),
+        if realtime { "realtime" } else { "lockstep" }
+    );
+    println!(
+        "controller: {}",
+        status.lock().map(|s| s.clone()).unwrap_or_default()
+    );
+    println!("bus: {:?}", bus.stats());
+    bus.shutdown();
+    Ok(())
+}
+
+fn make_plant(kind: PlantKind, task: &str, steps: u32) -> Result<Box<dyn Plant>> {
+    match kind {
+        PlantKind::Synthetic => {
+            let _ = task;
+            Ok(Box::new(SyntheticPlant::new(steps)))
+        }
+        #[cfg(feature = "mujoco")]
+        PlantKind::Mujoco => {
+            let task: dex_trainer::env::Task =
+                task.parse().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            Ok(Box::new(dex_hil_sim::plant::MujocoPlant::new(task)?))
+        }
+        #[cfg(not(feature = "mujoco"))]
+        PlantKind::Mujoco => bail!(
+            "built without the `mujoco` feature: use --plant synthetic, or build with \
+             `cargo build -p dex-hil-sim --features mujoco` (after scripts/setup-mujoco.sh)"
+        ),
+    }
+}
+
+fn bench_command(cycles: usize, realtime: bool, policy: Option<PathBuf>) -> Result<()> {
+    let policy = match policy {
+        Some(p) => std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?,
+        None => dex_runtime::testkit::jaco_policy(&[256, 256], 1)?,
+    };
+    let r = run_bench(&BenchConfig {
+        cycles,
+        real_time: realtime,
+        policy,
+    })?;
+    println!(
+        "mode {} cycles {} missed {}",
+        if realtime {
+            "realtime-20Hz"
+        } else {
+            "back-to-back"
+        },
+        r.cycles,
+        r.missed
+    );
+    println!(
+        "obs-to-action latency through the bus (us): {}",
+        r.latency_us
+    );
+    if realtime {
+        println!(
+            "observation send lateness vs 50 ms grid (us): {}",
+            r.send_lateness_us
+        );
+        println!(
+            "action period jitter |dt - 50 ms| (us): {}",
+            r.period_jitter_us
+        );
+    }
+    println!(
+        "frames per cycle {:.2}; bits per cycle {:.0} (no stuffing) .. {:.0} (worst-case stuffing); \
+         8-byte frame {:?} bits",
+        r.frames_per_cycle,
+        r.bits_per_cycle.0,
+        r.bits_per_cycle.1,
+        frame_bits(8)
+    );
+    for rate in [500_000.0, 1_000_000.0] {
+        let (lo, hi) = r.load_percent(rate);
+        println!("bus load at {} kbit/s: {lo:.2}% .. {hi:.2}%", rate / 1000.0);
+    }
+    println!("queue drops {}", r.queue_drops);
+    println!("controller: {}", r.controller_status);
+    if r.missed > 0 && !realtime {
+        bail!("{} cycles got no action", r.missed);
+    }
+    Ok(())
+}
+
+fn make_policy(out: &PathBuf, hidden: &[u16], seed: u64, mismatched: bool) -> Result<()> {
+    let bytes = if mismatched {
+        use dex_policy::synth::{SynthSpec, synth_policy};
+        use dex_runtime::interface::ACTION_JOINTS;
+        let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS
+            .iter()
+            .map(|j| (j.name, j.scale, j.min, j.max))
+            .collect();
+        synth_policy(&SynthSpec {
+            task: dex_policy::Task::Stack,
+            observation: &[("some_other_layout", 44)],
+            action: &action,
+            hidden,
+            hidden_activation: dex_policy::Activation::Relu,
+            output_activation: dex_policy::Activation::Tanh,
+            seed,
+        })?
+    } else {
+        dex_runtime::testkit::jaco_policy(hidden, seed)?
+    };
+    std::fs::write(out, bytes).with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
+}

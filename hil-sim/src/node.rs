@@ -1,0 +1,231 @@
+//! The controller node: `dex_runtime::Controller` behind the bus adapter, the same calls a
+//! microcontroller's main loop makes (`on_frame` for each received frame, `poll` each period,
+//! transmit whatever comes back).
+//!
+//! Time: in [`TimeMode::RealTime`] the controller reads a wall clock and the node polls at every
+//! period boundary; in [`TimeMode::Lockstep`] the controller's clock is the bus timestamp of the
+//! frames it receives and the node polls when a CANopen SYNC frame (id 0x080, sent by the plant at
+//! the start of every simulated cycle) arrives, so the run is deterministic.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use dex_policy::PolicyView;
+use dex_runtime::testkit::aligned_copy;
+use dex_runtime::{Clock, Controller, ControllerConfig, Diagnostics, MockClock, Outbox};
+
+use crate::client::{BusClient, ClientError, Received};
+
+/// CANopen SYNC identifier: the lockstep cycle tick.
+pub const SYNC_ID: u16 = 0x080;
+/// Widest layer the host controller node accepts.
+pub const NODE_WIDTH: usize = 256;
+
+/// How the node gets time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TimeMode {
+    /// Wall clock, polled at every period boundary (20 Hz).
+    RealTime,
+    /// Bus time of received frames; poll on SYNC.
+    Lockstep,
+}
+
+/// Errors of the controller node.
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    /// The bus connection failed.
+    #[error(transparent)]
+    Bus(#[from] ClientError),
+}
+
+/// A monotonic wall clock in microseconds since its creation.
+#[derive(Debug, Clone, Copy)]
+pub struct WallClock(Instant);
+
+impl WallClock {
+    /// A clock reading 0 now.
+    pub fn new() -> Self {
+        WallClock(Instant::now())
+    }
+}
+
+impl Default for WallClock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Clock for WallClock {
+    fn now_us(&self) -> u64 {
+        self.0.elapsed().as_micros() as u64
+    }
+}
+
+/// What the node reports when it stops.
+#[derive(Debug, Clone)]
+pub struct NodeReport {
+    /// The controller's counters.
+    pub diagnostics: Diagnostics,
+    /// Why the policy was refused, if it was.
+    pub load_error: Option<String>,
+}
+
+/// One status line: state, fault, policy load result and every diagnostic counter.
+pub fn status_line<const W: usize>(c: &Controller<'_, W>, load: &str) -> String {
+    let d = c.diagnostics();
+    format!(
+        "state={:?} fault={:?} policy={load} cycles={} missed_cycles={} evaluations={} overruns={} \
+         e2e_errors={} repeated={} wrong_sequence={} incomplete_observations={} no_new_data={} \
+         ignored_frames={}",
+        c.state(),
+        c.fault(),
+        d.cycles,
+        d.missed_cycles,
+        d.evaluations,
+        d.overruns,
+        d.e2e_errors,
+        d.repeated,
+        d.wrong_sequence,
+        d.incomplete_observations,
+        d.no_new_data,
+        d.ignored_frames
+    )
+}
+
+fn send(port: &mut BusClient, out: &Outbox) -> Result<(), ClientError> {
+    for f in out {
+        port.queue(f);
+    }
+    port.flush()
+}
+
+/// Runs the controller node until `stop` is set or the bus goes away. `policy` is a policy file;
+/// a refused file leaves the controller without policy (it stays pre-operational), as on a device.
+pub fn run_controller_node(
+    port: &mut BusClient,
+    policy: Option<&[u8]>,
+    cfg: ControllerConfig,
+    mode: TimeMode,
+    stop: &AtomicBool,
+    status: Option<Arc<Mutex<String>>>,
+) -> Result<NodeReport, NodeError> {
+    let bytes = policy.map(aligned_copy);
+    let mut controller = Controller::<NODE_WIDTH>::new(cfg);
+    let mut load_error = None;
+    if let Some(bytes) = bytes.as_ref() {
+        let loaded = PolicyView::decode(bytes.as_bytes())
+            .map_err(|e| e.to_string())
+            .and_then(|view| controller.load_policy(&view).map_err(|e| e.to_string()));
+        if let Err(e) = loaded {
+            eprintln!("hil-sim: controller node refused the policy: {e}");
+            load_error = Some(e);
+        }
+    }
+    let load = match (&load_error, policy) {
+        (Some(_), _) => "refused",
+        (None, Some(_)) => "loaded",
+        (None, None) => "none",
+    };
+    let publish = |c: &Controller<'_, NODE_WIDTH>| {
+        if let Some(slot) = status.as_ref()
+            && let Ok(mut s) = slot.lock()
+        {
+            *s = status_line(c, load);
+        }
+    };
+    publish(&controller);
+    let result = match mode {
+        TimeMode::RealTime => real_time_loop(port, &mut controller, cfg.period_us, stop, &publish),
+        TimeMode::Lockstep => lockstep_loop(port, &mut controller, stop, &publish),
+    };
+    match result {
+        Ok(()) | Err(ClientError::Closed) => {}
+        Err(e) => return Err(e.into()),
+    }
+    Ok(NodeReport {
+        diagnostics: *controller.diagnostics(),
+        load_error,
+    })
+}
+
+fn real_time_loop(
+    port: &mut BusClient,
+    controller: &mut Controller<'_, NODE_WIDTH>,
+    period_us: u32,
+    stop: &AtomicBool,
+    publish: &dyn Fn(&Controller<'_, NODE_WIDTH>),
+) -> Result<(), ClientError> {
+    let clock = WallClock::new();
+    let period = u64::from(period_us.max(1));
+    let out = controller.poll(&clock);
+    send(port, &out)?;
+    let mut next = clock.now_us() + period;
+    while !stop.load(Ordering::Relaxed) {
+        let now = clock.now_us();
+        if now >= next {
+            let out = controller.poll(&clock);
+            send(port, &out)?;
+            next += period * ((now - next) / period + 1);
+            publish(controller);
+            continue;
+        }
+        let wait = Duration::from_micros((next - now).min(20_000));
+        if let Some(Received::Frame(frame, _)) = port.receive_timeout(wait)? {
+            let out = controller.on_frame(&frame, &clock);
+            send(port, &out)?;
+            if !out.is_empty() {
+                publish(controller);
+            }
+        }
+    }
+    Ok(())
+}
+
+fn lockstep_loop(
+    port: &mut BusClient,
+    controller: &mut Controller<'_, NODE_WIDTH>,
+    stop: &AtomicBool,
+    publish: &dyn Fn(&Controller<'_, NODE_WIDTH>),
+) -> Result<(), ClientError> {
+    let clock = MockClock::new(0);
+    while !stop.load(Ordering::Relaxed) {
+        let Some(Received::Frame(frame, ts)) = port.receive_timeout(Duration::from_millis(50))?
+        else {
+            continue;
+        };
+        clock.set(ts);
+        let out = if dex_runtime::can::CanFrame::standard_id(&frame) == Some(SYNC_ID) {
+            controller.poll(&clock)
+        } else {
+            controller.on_frame(&frame, &clock)
+        };
+        send(port, &out)?;
+        publish(controller);
+    }
+    Ok(())
+}
+
+/// Connects a controller node to the bus at `addr` and runs it on a new thread.
+pub fn spawn_controller_node(
+    addr: std::net::SocketAddr,
+    policy: Option<Vec<u8>>,
+    mode: TimeMode,
+    stop: Arc<AtomicBool>,
+    status: Option<Arc<Mutex<String>>>,
+) -> Result<std::thread::JoinHandle<Result<NodeReport, NodeError>>, NodeError> {
+    let mut port = BusClient::connect(addr, "vcan0")?;
+    std::thread::Builder::new()
+        .name("controller-node".into())
+        .spawn(move || {
+            run_controller_node(
+                &mut port,
+                policy.as_deref(),
+                ControllerConfig::default(),
+                mode,
+                &stop,
+                status,
+            )
+        })
+        .map_err(|e| NodeError::Bus(ClientError::Io(e)))
+}
