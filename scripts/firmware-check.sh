@@ -15,6 +15,8 @@
 #   3. the same policy on netduinoplus2 (STM32F405 map: 1 MB flash, 128 KB RAM): equal to the host twin.
 #   4. a corrupted policy file: the fault state, reported, exit status non-zero, no hang.
 #   5. an undefined instruction at boot: the HardFault handler reports and exits non-zero.
+#   6. the int8 experiment (feature int8) on the default-size policy: equal to the host twin, action
+#      error against f32 at most 1% of each joint's range, instructions within budget.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -65,11 +67,12 @@ build_fw() {
     cp "$FW/target/$TARGET/release/dex-firmware" "$out"
 }
 
-# host_ref OUT POLICY: the host twin's report for POLICY.
+# host_ref OUT POLICY [cargo args...]: the host twin's report for POLICY.
 host_ref() {
     local out=$1 policy=$2
+    shift 2
     (cd "$FW" && DEX_POLICY="$policy" DEX_TRACE="" \
-        cargo build --release --quiet --target "$HOST" -p dex-firmware-host) ||
+        cargo build --release --quiet --target "$HOST" -p dex-firmware-host "$@") ||
         die "host twin build failed (policy $policy)"
     "$FW/target/$HOST/release/fw-host" reference >"$out" || die "host twin failed: $(tail -1 "$out")"
 }
@@ -93,16 +96,16 @@ expect_ok() {
 # same_as_host QEMU_LOG HOST_LOG WHAT: layer, evaluator and controller lines identical.
 same_as_host() {
     local n
-    n=$(grep -c '^[AC] ' "$1" || true)
+    n=$(grep -c '^[ACQ] ' "$1" || true)
     [ "$n" -gt 0 ] || die "$3: no action lines from QEMU"
-    diff <(grep -E '^(L|A|C) ' "$2") <(grep -E '^(L|A|C) ' "$1") >"$WORK/diff.txt" ||
+    diff <(grep -E '^(L|A|C|Q|E) ' "$2") <(grep -E '^(L|A|C|Q|E) ' "$1") >"$WORK/diff.txt" ||
         { head -20 "$WORK/diff.txt" >&2; die "$3: QEMU output differs from the host twin"; }
     echo "   $3: $n action lines bit-identical to the host twin"
 }
 
 # --- 1. golden policy ----------------------------------------------------------------------------
 GOLDEN="$ROOT/runtime/tests/golden"
-step "1/5 golden 44-64-64-9 policy on mps2-an386"
+step "1/6 golden 44-64-64-9 policy on mps2-an386"
 build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
 rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
 expect_ok "$rc" "$WORK/golden.log" golden
@@ -131,7 +134,7 @@ host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
 same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
 
 # --- 2. default-size policy, budget and footprint -------------------------------------------------
-step "2/5 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
+step "2/6 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
 (cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
 "$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
     die "make-policy failed"
@@ -154,6 +157,7 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "# Re-bless only on purpose: FIRMWARE_BLESS=1 scripts/firmware-check.sh"
         echo "mlp_step $mlp_max"
         echo "controller_step $ctrl_max"
+        echo "int8_step BLESS_PENDING"
     } >"$BUDGET"
     echo "   blessed $BUDGET"
 fi
@@ -183,7 +187,7 @@ arm-none-eabi-size -A "$WORK/p256.elf" | awk -v pol="$policy_bytes" -v tr="$trac
     }'
 
 # --- 3. second board ------------------------------------------------------------------------------
-step "3/5 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
+step "3/6 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
 build_fw "$WORK/nd.elf" "$WORK/jaco_256.dxpl" netduinoplus2
 rc=$(run_qemu "$WORK/nd.elf" netduinoplus2 "$WORK/nd.log")
 expect_ok "$rc" "$WORK/nd.log" netduinoplus2
@@ -200,7 +204,7 @@ if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
 fi
 
 # --- 4. corrupted policy: the fault state ---------------------------------------------------------
-step "4/5 corrupted policy file: fault state, non-zero exit, no hang"
+step "4/6 corrupted policy file: fault state, non-zero exit, no hang"
 python3 - "$GOLDEN/jaco_64.dxpl" "$WORK/corrupt.dxpl" <<'EOF'
 import sys
 b = bytearray(open(sys.argv[1], "rb").read())
@@ -215,11 +219,29 @@ grep -q '^[AC] ' "$WORK/corrupt.log" && die "corrupted policy: actions were prod
 echo "   $(grep '^FAULT' "$WORK/corrupt.log") (exit $rc)"
 
 # --- 5. HardFault -----------------------------------------------------------------------------------
-step "5/5 HardFault handler exits non-zero"
+step "5/6 HardFault handler exits non-zero"
 build_fw "$WORK/hardfault.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features hardfault-test
 rc=$(run_qemu "$WORK/hardfault.elf" mps2-an386 "$WORK/hardfault.log")
 [ "$rc" = 1 ] || die "hardfault test: exit status $rc, want 1 (124 = hang)"
 grep -q '^FAULT hardfault' "$WORK/hardfault.log" || die "hardfault test: no FAULT report"
 echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
+
+# --- 6. int8 experiment -----------------------------------------------------------------------------
+step "6/6 int8 experiment (W8A16, per-output-channel scales) on the 44-256-256-9 policy"
+build_fw "$WORK/int8.elf" "$WORK/jaco_256.dxpl" mps2-an386 --features int8
+rc=$(run_qemu "$WORK/int8.elf" mps2-an386 "$WORK/int8.log")
+expect_ok "$rc" "$WORK/int8.log" int8
+host_ref "$WORK/int8.host" "$WORK/jaco_256.dxpl" --features int8
+same_as_host "$WORK/int8.log" "$WORK/int8.host" int8
+grep -E '^(H int8|E|I int8) ' "$WORK/int8.log" | sed 's/^/   /'
+awk '/^E int8 / { for (i = 4; i <= NF; i++) if ($i + 0 > 10.0) bad = bad " " $i }
+     END { if (bad != "") { print "   int8 error over 10 per mille of a joint range:" bad; exit 1 } }' \
+    "$WORK/int8.log" || die "int8: action error above 1% of a joint's range"
+int8_max=$(sed -n 's/^I int8 .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
+[ -n "$int8_max" ] || die "int8: no instruction count"
+if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
+    sed -i "s/^int8_step .*/int8_step $int8_max/" "$BUDGET"
+fi
+check_budget int8_step "$int8_max"
 
 echo "firmware-check: OK"

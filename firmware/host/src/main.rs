@@ -37,7 +37,17 @@ fn reference() -> ExitCode {
         out: std::io::stdout().lock(),
         failed: false,
     };
-    match dex_firmware::run(&mut host) {
+    #[allow(unused_mut)] // assigned only with the `int8` feature
+    let mut result = dex_firmware::run(&mut host);
+    #[cfg(feature = "int8")]
+    if result.is_ok() {
+        let mut weights = vec![0i8; dex_firmware::INT8_WEIGHTS];
+        let mut scales = vec![0f32; dex_firmware::INT8_SCALES];
+        if let Err(fault) = dex_firmware::run_int8(&mut host, &mut weights, &mut scales) {
+            result = Err(fault);
+        }
+    }
+    match result {
         Ok(s) if !host.failed => {
             host.line(format_args!("END ok steps={}", s.steps));
             ExitCode::SUCCESS
