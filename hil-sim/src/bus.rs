@@ -82,6 +82,9 @@ pub struct BusConfig {
     pub log: Option<PathBuf>,
     /// Channel name in the log.
     pub channel: String,
+    /// Fixed kernel send buffer per client socket (`SO_SNDBUF`); `None` keeps autotuning. A small
+    /// one makes a stalled client's queue fill quickly (tests of the slow-client path).
+    pub send_buffer: Option<usize>,
 }
 
 impl Default for BusConfig {
@@ -92,6 +95,7 @@ impl Default for BusConfig {
             queue_depth: 4096,
             log: None,
             channel: "vcan0".to_string(),
+            send_buffer: None,
         }
     }
 }
@@ -335,10 +339,11 @@ impl Bus {
         let accept_tx = tx.clone();
         let accept_shared = Arc::clone(&shared);
         let depth = cfg.queue_depth.max(16);
+        let sndbuf = cfg.send_buffer;
         threads.push(
             std::thread::Builder::new()
                 .name("bus-accept".into())
-                .spawn(move || accept_loop(listener, accept_tx, accept_shared, depth))
+                .spawn(move || accept_loop(listener, accept_tx, accept_shared, depth, sndbuf))
                 .map_err(BusError::Thread)?,
         );
         Ok(Bus {
@@ -409,7 +414,30 @@ impl Drop for Bus {
     }
 }
 
-fn accept_loop(listener: TcpListener, events: Sender<Event>, shared: Arc<Shared>, depth: usize) {
+/// Sets `SO_SNDBUF` (best effort).
+fn set_send_buffer(stream: &TcpStream, bytes: usize) {
+    use std::os::fd::AsRawFd;
+    let value = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
+    // SAFETY: the descriptor is open for the lifetime of `stream`, and the option value is a
+    // c_int whose size is passed alongside.
+    unsafe {
+        libc::setsockopt(
+            stream.as_raw_fd(),
+            libc::SOL_SOCKET,
+            libc::SO_SNDBUF,
+            (&value as *const libc::c_int).cast(),
+            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+        );
+    }
+}
+
+fn accept_loop(
+    listener: TcpListener,
+    events: Sender<Event>,
+    shared: Arc<Shared>,
+    depth: usize,
+    sndbuf: Option<usize>,
+) {
     let mut next_id = 0u64;
     for conn in listener.incoming() {
         if shared.stop.load(Ordering::SeqCst) {
@@ -417,6 +445,9 @@ fn accept_loop(listener: TcpListener, events: Sender<Event>, shared: Arc<Shared>
         }
         let Ok(stream) = conn else { continue };
         let _ = stream.set_nodelay(true);
+        if let Some(bytes) = sndbuf {
+            set_send_buffer(&stream, bytes);
+        }
         let Ok(write_half) = stream.try_clone() else {
             continue;
         };

@@ -54,6 +54,9 @@ enum Command {
         /// Frames queued per client before frames to it are dropped.
         #[arg(long, default_value_t = 4096)]
         queue: usize,
+        /// Fixed kernel send buffer per client socket in bytes (default: autotuned).
+        #[arg(long)]
+        sndbuf: Option<usize>,
     },
     /// Closed-loop episodes: plant node and controller node over the bus.
     Run {
@@ -120,7 +123,8 @@ fn main() -> Result<()> {
             controller,
             seconds,
             queue,
-        } => bus_command(port, log, policy, controller, seconds, queue),
+            sndbuf,
+        } => bus_command(port, log, policy, controller, seconds, queue, sndbuf),
         Command::Run {
             policy,
             episodes,
@@ -152,11 +156,13 @@ fn bus_command(
     controller: bool,
     seconds: Option<f64>,
     queue: usize,
+    sndbuf: Option<usize>,
 ) -> Result<()> {
     let bus = Bus::start(BusConfig {
         addr: SocketAddr::from(([127, 0, 0, 1], port)),
         log,
         queue_depth: queue,
+        send_buffer: sndbuf,
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));

@@ -1,0 +1,266 @@
+"""Shared fixtures of the software-in-the-loop tests (tests/test_sil_*.py).
+
+The `hil_sim` fixture builds `dex-hil-sim` with cargo (honouring CARGO_TARGET_DIR, default
+`target/`), the `sim` fixture starts `hil-sim bus` with the controller node on a free port of
+127.0.0.1 and stops it afterwards. Python talks to the bus with python-can's `socketcand`
+interface and reads/writes the frames with cantools and the repository's DBC.
+"""
+import os
+import re
+import select
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import can
+import cantools
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DB = cantools.database.load_file(ROOT / "can" / "jaco.dbc")
+NODE = 0x10
+HEARTBEAT_ID = 0x700 + NODE
+EMCY_ID = 0x80 + NODE
+PERIOD = 0.05
+OBS_MESSAGES = [DB.get_message_by_name(f"OBS_{k:02d}") for k in range(15)]
+ACTION_MESSAGES = [DB.get_message_by_name(f"ACTION_{k}") for k in range(3)]
+HEAD = {"crc", "alive_counter", "sample_counter"}
+OBS_SIGNALS = [s.name for m in OBS_MESSAGES for s in m.signals if s.name not in HEAD]
+NMT_START, NMT_STOP, NMT_PREOP = 0x01, 0x02, 0x80
+OPERATIONAL, PREOP, STOPPED = 0x05, 0x7F, 0x04
+
+
+def crc8_sae_j1850(data: bytes) -> int:
+    """CRC-8/SAE-J1850: poly 0x1D, init 0xFF, no reflection, final XOR 0xFF."""
+    crc = 0xFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc ^ 0xFF
+
+
+def protect(can_id: int, data: bytearray) -> bytearray:
+    """Fills byte 0 with the E2E CRC over the data id (LE) and bytes 1..n."""
+    data[0] = crc8_sae_j1850(can_id.to_bytes(2, "little") + bytes(data[1:]))
+    return data
+
+
+def cargo_target_dir() -> Path:
+    return Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+
+
+@pytest.fixture(scope="session")
+def hil_sim() -> Path:
+    subprocess.run(["cargo", "build", "-q", "-p", "dex-hil-sim"], cwd=ROOT, check=True)
+    binary = cargo_target_dir() / "debug" / "hil-sim"
+    assert binary.exists(), binary
+    return binary
+
+
+@pytest.fixture(scope="session")
+def policies(hil_sim, tmp_path_factory):
+    d = tmp_path_factory.mktemp("policies")
+    good, bad = d / "jaco_64.dxpl", d / "mismatched.dxpl"
+    subprocess.run([hil_sim, "make-policy", "--out", good, "--hidden", "64,64"], check=True)
+    subprocess.run([hil_sim, "make-policy", "--out", bad, "--mismatched-layout"], check=True)
+    return {"good": good, "mismatched": bad}
+
+
+class Sim:
+    """A running `hil-sim bus` process with the controller node, and python-can buses on it."""
+
+    def __init__(self, binary, policy, log, extra=()):
+        args = [binary, "bus", "--port", "0", "--log", log, *extra]
+        if policy is not None:
+            args += ["--policy", policy]
+        else:
+            args += ["--controller"]
+        self.log = log
+        self.proc = subprocess.Popen(
+            args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        ready, _, _ = select.select([self.proc.stdout], [], [], 10)
+        line = self.proc.stdout.readline() if ready else ""
+        m = re.search(r"listening on 127\.0\.0\.1:(\d+)", line)
+        if not m:
+            self.proc.kill()
+            raise RuntimeError(f"hil-sim bus did not start: {line!r} {self.proc.stderr.read()}")
+        self.port = int(m.group(1))
+        self.buses = []
+        self.sockets = []
+
+    def bus(self):
+        b = can.Bus(
+            interface="socketcand", host="127.0.0.1", port=self.port, channel="vcan0", tcp_tune=True
+        )
+        self.buses.append(b)
+        return b
+
+    def raw(self):
+        """A raw TCP connection past the greeting (for control commands or garbage)."""
+        s = socket.create_connection(("127.0.0.1", self.port), timeout=2)
+        self.sockets.append(s)
+        assert _read_message(s) == "< hi >"
+        return s
+
+    def control(self, command: str) -> str:
+        s = self.raw()
+        s.sendall(f"< {command} >".encode())
+        reply = _read_message(s)
+        s.close()
+        self.sockets.remove(s)
+        return reply
+
+    def diag(self) -> dict:
+        reply = self.control("diag")
+        return dict(w.split("=", 1) for w in reply.strip("<> ").split()[1:] if "=" in w)
+
+    def stats(self) -> dict:
+        reply = self.control("stats")
+        return dict(w.split("=", 1) for w in reply.strip("<> ").split()[1:] if "=" in w)
+
+    def close(self):
+        for b in self.buses:
+            b.shutdown()
+        for s in self.sockets:
+            s.close()
+        if self.proc.poll() is None:
+            try:
+                self.control("quit")
+                self.proc.wait(timeout=3)
+            except Exception:  # noqa: BLE001 - stop it whatever happened
+                self.proc.kill()
+                self.proc.wait(timeout=3)
+
+
+def _read_message(s: socket.socket) -> str:
+    buf = b""
+    deadline = time.monotonic() + 2
+    while b">" not in buf and time.monotonic() < deadline:
+        chunk = s.recv(4096)
+        if not chunk:
+            break
+        buf += chunk
+    return buf[: buf.find(b">") + 1].decode()
+
+
+@pytest.fixture
+def sim(hil_sim, policies, tmp_path):
+    """Factory: sim(policy="good"|"mismatched"|None, extra=[...]) -> running Sim."""
+    made = []
+
+    def start(policy="good", extra=()):
+        path = policies[policy] if policy else None
+        s = Sim(hil_sim, path, tmp_path / f"bus{len(made)}.log", extra)
+        made.append(s)
+        return s
+
+    yield start
+    for s in made:
+        s.close()
+
+
+# ---- plant side helpers ---------------------------------------------------------------------
+
+
+def observation(step: int = 0) -> list:
+    """A plausible observation in interface order (44 values)."""
+    import math
+
+    q = [0.3 * math.sin(0.1 * step + j) for j in range(9)]
+    values = [math.sin(a) for a in q[:6]] + [math.cos(a) for a in q[:6]]
+    values += q[6:9] + [0.1] * 9
+    values += [0.05, 0.4, 0.02, 1.0, 0.0, 0.0, 0.0, -0.05, 0.45, 0.02, 1.0, 0.0, 0.0, 0.0]
+    values += [0.01, 0.02, -0.1, 0.03, 0.04, -0.1]
+    assert len(values) == 44 == len(OBS_SIGNALS)
+    return values
+
+
+class PlantTx:
+    """Encodes observations into the 15 protected frames with cantools (one alive counter per id)."""
+
+    def __init__(self):
+        self.counters = [0] * 15
+        self.sample = 0
+
+    def frames(self, values, sample=None, counters=None, strict=True):
+        if sample is None:
+            self.sample = (self.sample + 1) & 0x0F
+            sample = self.sample
+        named = dict(zip(OBS_SIGNALS, values))
+        out = []
+        for k, msg in enumerate(OBS_MESSAGES):
+            counter = self.counters[k] if counters is None else counters[k]
+            signals = {s.name: named.get(s.name, 0.0) for s in msg.signals if s.name not in HEAD}
+            signals.update(crc=0, alive_counter=counter, sample_counter=sample)
+            data = bytearray(msg.encode(signals, strict=strict))
+            out.append(can.Message(arbitration_id=msg.frame_id, data=protect(msg.frame_id, data), is_extended_id=False))
+            if counters is None:
+                self.counters[k] = 0 if counter >= 14 else counter + 1
+        return out
+
+    def send(self, bus, values, **kw):
+        frames = self.frames(values, **kw)
+        for f in frames:
+            bus.send(f)
+        return frames
+
+
+def nmt(bus, command, node=NODE):
+    bus.send(can.Message(arbitration_id=0, data=[command, node], is_extended_id=False))
+
+
+def collect(bus, seconds, stop=None):
+    """Every message received for `seconds` (or until `stop(msg)` is true), with arrival times."""
+    out = []
+    deadline = time.monotonic() + seconds
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        msg = bus.recv(timeout=left)
+        if msg is None:
+            break
+        out.append((time.monotonic(), msg))
+        if stop is not None and stop(msg):
+            break
+    return out
+
+
+def wait_heartbeat(bus, state, seconds=2.0):
+    got = collect(
+        bus, seconds, lambda m: m.arbitration_id == HEARTBEAT_ID and m.data[0] == state
+    )
+    assert got and got[-1][1].arbitration_id == HEARTBEAT_ID and got[-1][1].data[0] == state, (
+        f"no heartbeat with state {state:#x}: {[hex(m.arbitration_id) for _, m in got][-10:]}"
+    )
+    return got
+
+
+def decode_action(msgs):
+    """{sample: {joint: value}} from complete action frame triples."""
+    by_sample = {}
+    for m in msgs:
+        if 0x280 <= m.arbitration_id <= 0x282:
+            d = DB.decode_message(m.arbitration_id, m.data, decode_choices=False)
+            by_sample.setdefault(d["sample_counter"], {}).update(
+                {k: v for k, v in d.items() if k not in HEAD}
+            )
+    return {s: v for s, v in by_sample.items() if len(v) == 9}
+
+
+def emcy_codes(msgs):
+    return [DB.decode_message(EMCY_ID, m.data, decode_choices=False)["error_code"] for m in msgs if m.arbitration_id == EMCY_ID]
+
+
+@pytest.fixture
+def operational(sim):
+    """A started controller (good policy) and a python-can bus on it."""
+    s = sim()
+    bus = s.bus()
+    wait_heartbeat(bus, PREOP, 2.0)
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    return s, bus

@@ -1,0 +1,98 @@
+"""The virtual bus itself: delivery to all other clients in one order, bus timestamps, the candump
+log, garbage and dropped connections, and a slow client that must not stall the others."""
+import re
+import socket
+import threading
+import time
+
+import can
+
+from conftest import collect
+
+
+def test_frames_reach_every_other_client_in_order_with_timestamps(sim):
+    s = sim(None)  # controller node without policy: pre-operational chatter on the bus
+    a, b, c = s.bus(), s.bus(), s.bus()
+    time.sleep(0.05)
+    for i in range(20):
+        a.send(can.Message(arbitration_id=0x123, data=[i, 0xFF], is_extended_id=False))
+    a.send(can.Message(arbitration_id=0x7, data=[], is_extended_id=False))
+    a.send(can.Message(arbitration_id=0x1ABCDEF0, data=[1], is_extended_id=True))
+    for rx in (b, c):
+        got = [m for _, m in collect(rx, 0.3) if m.arbitration_id in (0x123, 0x7, 0x1ABCDEF0)]
+        assert [bytes(m.data) for m in got[:20]] == [bytes([i, 0xFF]) for i in range(20)]
+        assert got[20].arbitration_id == 0x7 and len(got[20].data) == 0
+        assert got[21].is_extended_id and got[21].arbitration_id == 0x1ABCDEF0
+        stamps = [m.timestamp for m in got]
+        assert stamps == sorted(stamps)
+    # The sender does not hear its own frames.
+    assert not [m for _, m in collect(a, 0.1) if m.arbitration_id == 0x123]
+    s.control("quit")
+    s.proc.wait(timeout=3)
+    log = s.log.read_text().splitlines()
+    assert any(line.endswith("vcan0 123#00FF") for line in log)
+    assert any(line.endswith("vcan0 007#") for line in log)
+    assert all(re.fullmatch(r"\(\d+\.\d{6}\) vcan0 [0-9A-F]{3,8}#([0-9A-F]{2})*", line) for line in log)
+
+
+def test_garbage_and_dropped_connections_do_not_take_the_bus_down(sim):
+    s = sim(None)
+    a, b = s.bus(), s.bus()
+    for junk in [b"\x00\xff garbage", b"< send 123 9 1 >", b"< bogus >", b"<" * 2000, b"< send 12"]:
+        r = s.raw()
+        r.sendall(junk)
+        r.close()
+        s.sockets.remove(r)
+    r = s.raw()
+    r.sendall(b"< open vcan0 >< rawmode >")
+    r.shutdown(socket.SHUT_RDWR)
+    r.close()
+    s.sockets.remove(r)
+    time.sleep(0.1)
+    a.send(can.Message(arbitration_id=0x321, data=[1, 2, 3], is_extended_id=False))
+    got = [m for _, m in collect(b, 0.3) if m.arbitration_id == 0x321]
+    assert got and bytes(got[0].data) == b"\x01\x02\x03"
+    stats = s.stats()
+    assert int(stats["unknown_messages"]) >= 2
+    assert s.proc.poll() is None
+
+
+def test_slow_client_loses_frames_alone(sim):
+    s = sim(None, extra=["--queue", "1024", "--sndbuf", "8192"])
+    slow = socket.socket()
+    slow.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    slow.connect(("127.0.0.1", s.port))
+    s.sockets.append(slow)
+    slow.sendall(b"< open vcan0 >< rawmode >")  # subscribes, never reads
+    fast = s.raw()
+    fast.sendall(b"< open vcan0 >< rawmode >")
+    sender = s.raw()
+    time.sleep(0.1)
+    n = 20000
+    received = [0]
+
+    def read_fast():
+        fast.settimeout(1.0)
+        buf = b""
+        try:
+            while received[0] < n:
+                chunk = fast.recv(65536)
+                if not chunk:
+                    break
+                buf += chunk
+                received[0] += buf.count(b"< frame 456 ")
+                buf = buf[buf.rfind(b">") + 1:]
+        except OSError:
+            pass
+
+    t = threading.Thread(target=read_fast)
+    t.start()
+    chunk = b"< send 456 2 1 2 >" * 40
+    for _ in range(n // 40):
+        sender.sendall(chunk)
+        time.sleep(0.002)
+    t.join(timeout=10)
+    assert received[0] == n
+    stats = s.stats()
+    drops = dict(x.split(":") for x in stats["client_drops"].split(",") if ":" in x)
+    assert len(drops) == 1 and int(next(iter(drops.values()))) > 0

@@ -1,0 +1,55 @@
+"""NMT state changes, heartbeat period and states, policy refusal: the controller node seen from
+python-can over the virtual bus (real-time mode, 20 Hz)."""
+from conftest import (
+    DB, HEARTBEAT_ID, NMT_PREOP, NMT_START, NMT_STOP, OPERATIONAL, PREOP, STOPPED, collect,
+    decode_action, emcy_codes, nmt, wait_heartbeat,
+)
+
+
+def heartbeats(msgs):
+    return [(t, DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False)) for t, m in msgs if m.arbitration_id == HEARTBEAT_ID]
+
+
+def test_preoperational_heartbeat_period_and_safe_actions(sim):
+    bus = sim().bus()
+    msgs = collect(bus, 1.3)
+    hb = heartbeats(msgs)
+    assert len(hb) >= 2
+    assert all(d["nmt_state"] == PREOP and d["state"] == 1 and d["fault_code"] == 0 for _, d in hb)
+    # Heartbeat every 10 cycles = 500 ms.
+    gaps = [b[0] - a[0] for a, b in zip(hb, hb[1:])]
+    assert all(0.42 < g < 0.58 for g in gaps), gaps
+    counters = [d["counter"] for _, d in hb]
+    assert all((b - a) % 256 == 1 for a, b in zip(counters, counters[1:]))
+    # Pre-operational: a zero-velocity action every cycle (about 26 in 1.3 s).
+    actions = decode_action([m for _, m in msgs])
+    assert sum(m.arbitration_id == 0x280 for _, m in msgs) >= 20
+    assert all(v == 0.0 for a in actions.values() for v in a.values())
+
+
+def test_nmt_start_stop_preop_cycle(operational):
+    _, bus = operational
+    nmt(bus, NMT_STOP)
+    got = wait_heartbeat(bus, STOPPED, 1.0)
+    assert DB.decode_message(HEARTBEAT_ID, got[-1][1].data, decode_choices=False)["state"] == 3  # safe-stop
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    nmt(bus, NMT_PREOP)
+    wait_heartbeat(bus, PREOP, 1.0)
+    # Commands for another node are ignored.
+    nmt(bus, NMT_START, node=0x11)
+    msgs = collect(bus, 0.6)
+    assert all(d["nmt_state"] == PREOP for _, d in heartbeats(msgs))
+
+
+def test_mismatched_policy_is_refused_and_controller_stays_preoperational(sim):
+    s = sim("mismatched")
+    bus = s.bus()
+    wait_heartbeat(bus, PREOP, 2.0)
+    assert s.diag()["policy"] == "refused"
+    nmt(bus, NMT_START)
+    msgs = collect(bus, 0.7)
+    assert 0xFF05 in emcy_codes([m for _, m in msgs])  # start without a policy
+    hb = heartbeats(msgs)
+    assert hb and all(d["nmt_state"] == PREOP for _, d in hb)
+    assert s.diag()["state"] == "PreOperational"
