@@ -224,3 +224,12 @@ fn demonstrator_grasps_and_stack_in_hand_starts_held() {
     assert!(p.grasp && p.reach, "brick 1 starts lifted in the hand");
     assert_eq!(env.steps_taken(), 0);
 }
+
+#[test]
+fn environments_can_move_between_threads() {
+    fn assert_send<T: Send>() {}
+    fn assert_sync<T: Sync>() {}
+    assert_send::<JacoEnv>();
+    assert_send::<Scene>();
+    assert_sync::<Scene>();
+}

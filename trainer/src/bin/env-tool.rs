@@ -3,6 +3,7 @@
 //! ```text
 //! env-tool demo  --task grasp|stack|stack-in-hand|reach [--episodes 200] [--seed 0] [--verbose]
 //! env-tool bench [--threads 1] [--steps 3000] [--mode random|demo]
+//! env-tool record --task stack [--seed 0] [--out runs/demo]   # for scripts/render-demo.py
 //! ```
 
 use std::process::ExitCode;
@@ -43,9 +44,13 @@ fn run(args: &[String]) -> Result<(), BoxError> {
     match cmd {
         "demo" => demo(args),
         "bench" => bench(args),
+        "record" => record(args),
         _ => {
             println!("usage: env-tool demo --task TASK [--episodes N] [--seed S] [--verbose]");
             println!("       env-tool bench [--threads N] [--steps N] [--mode random|demo]");
+            println!(
+                "       env-tool record --task TASK [--seed S] [--out DIR]   (scene.xml + qpos.csv of a demo episode)"
+            );
             Ok(())
         }
     }
@@ -101,6 +106,45 @@ fn demo(args: &[String]) -> Result<(), BoxError> {
         "task {task:?}: {successes}/{episodes} successes ({:.1}%), {steps} control steps in {secs:.1} s ({:.0} steps/s incl. resets)",
         100.0 * f64::from(successes) / episodes as f64,
         steps as f64 / secs
+    );
+    Ok(())
+}
+
+/// Writes the composed scene as one MJCF file and the demonstrator's qpos at every control step.
+fn record(args: &[String]) -> Result<(), BoxError> {
+    use std::io::Write;
+    let task: Task = flag(args, "--task", Task::Stack)?;
+    let seed: u64 = flag(args, "--seed", 0)?;
+    let out: String = flag(args, "--out", "runs/demo".to_owned())?;
+    let dir = std::path::Path::new(&out);
+    std::fs::create_dir_all(dir)?;
+    let mut spec = dex_trainer::env::scene::compose_spec(&dex_trainer::env::AssetPaths::locate())?;
+    spec.compile()?;
+    spec.save_xml(dir.join("scene.xml"))?;
+    let scene = Scene::load()?;
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
+    env.reset(seed)?;
+    let mut demo = Demonstrator::new(task);
+    let mut file = std::io::BufWriter::new(std::fs::File::create(dir.join("qpos.csv"))?);
+    let mut write_row = |env: &JacoEnv| -> std::io::Result<()> {
+        let row: Vec<String> = env
+            .data()
+            .qpos()
+            .iter()
+            .map(|q| format!("{q:.6}"))
+            .collect();
+        writeln!(file, "{}", row.join(","))
+    };
+    write_row(&env)?;
+    let mut success = false;
+    for _ in 0..env.config().episode_steps {
+        let out = env.step(&demo.act(&env))?;
+        write_row(&env)?;
+        success = out.success;
+    }
+    println!(
+        "recorded {task:?} seed {seed} (success {success}) into {}",
+        dir.display()
     );
     Ok(())
 }

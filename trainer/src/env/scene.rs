@@ -117,32 +117,7 @@ impl Scene {
 
     /// Builds the scene from the given asset folder.
     pub fn from_assets(assets: &AssetPaths) -> Result<Self, EnvError> {
-        let arm = assets.file("kinova/jaco_arm.xml")?;
-        let hand = assets.file("kinova/jaco_hand.xml")?;
-        let duplo = assets.file("duplo/duplo2x4.xml")?;
-        let xml = scene_xml(&arm, &duplo);
-        let mut spec = MjSpec::from_xml_string(&xml).map_err(|source| EnvError::Scene {
-            stage: "parsing the scene MJCF",
-            source,
-        })?;
-        let mut hand_spec = MjSpec::from_xml(&hand).map_err(|source| EnvError::Scene {
-            stage: "parsing jaco_hand.xml",
-            source,
-        })?;
-        let hand_body = hand_spec.body_mut("hand").ok_or(EnvError::MissingElement {
-            kind: "body",
-            name: "hand",
-        })?;
-        spec.site_mut("arm/wristsite")
-            .ok_or(EnvError::MissingElement {
-                kind: "site",
-                name: "arm/wristsite",
-            })?
-            .attach_by_deep_copy(hand_body, "hand/", "")
-            .map_err(|source| EnvError::Scene {
-                stage: "attaching the hand to arm/wristsite",
-                source,
-            })?;
+        let mut spec = compose_spec(assets)?;
         let model = spec.compile().map_err(|source| EnvError::Scene {
             stage: "compiling",
             source,
@@ -168,6 +143,38 @@ impl Scene {
     pub fn make_data(&self) -> MjData<Arc<MjModel>> {
         MjData::new(Arc::clone(&self.model))
     }
+}
+
+/// The uncompiled scene: our scene MJCF with the arm and bricks attached, and the hand attached to the arm's
+/// `wristsite` through mjSpec. Exposed so tools can save it as one MJCF file (`MjSpec::save_xml`).
+pub fn compose_spec(assets: &AssetPaths) -> Result<MjSpec, EnvError> {
+    let arm = assets.file("kinova/jaco_arm.xml")?;
+    let hand = assets.file("kinova/jaco_hand.xml")?;
+    let duplo = assets.file("duplo/duplo2x4.xml")?;
+    let xml = scene_xml(&arm, &duplo);
+    let mut spec = MjSpec::from_xml_string(&xml).map_err(|source| EnvError::Scene {
+        stage: "parsing the scene MJCF",
+        source,
+    })?;
+    let mut hand_spec = MjSpec::from_xml(&hand).map_err(|source| EnvError::Scene {
+        stage: "parsing jaco_hand.xml",
+        source,
+    })?;
+    let hand_body = hand_spec.body_mut("hand").ok_or(EnvError::MissingElement {
+        kind: "body",
+        name: "hand",
+    })?;
+    spec.site_mut("arm/wristsite")
+        .ok_or(EnvError::MissingElement {
+            kind: "site",
+            name: "arm/wristsite",
+        })?
+        .attach_by_deep_copy(hand_body, "hand/", "")
+        .map_err(|source| EnvError::Scene {
+            stage: "attaching the hand to arm/wristsite",
+            source,
+        })?;
+    Ok(spec)
 }
 
 fn lookup(
@@ -233,7 +240,7 @@ fn scene_xml(arm: &Path, duplo: &Path) -> String {
   </asset>
   <worldbody>
     <light pos="0 -0.5 1.5" dir="0 0.3 -1" directional="true"/>
-    <camera name="front" pos="0 -0.75 0.5" xyaxes="1 0 0 0 0.55 0.83"/>
+    <camera name="front" pos="0 -0.42 0.33" xyaxes="1 0 0 0 0.55 0.83"/>
     <geom name="table" type="plane" size="1 1 0.1" material="table" friction="0.4"
           solref="0.01 1" solimp="0.99 0.999 0.001"/>
     <frame pos="{ax} {ay} {az}">
