@@ -32,6 +32,11 @@ enum PlantKind {
     Mujoco,
 }
 
+#[cfg(feature = "mujoco")]
+const DEFAULT_PLANT: PlantKind = PlantKind::Mujoco;
+#[cfg(not(feature = "mujoco"))]
+const DEFAULT_PLANT: PlantKind = PlantKind::Synthetic;
+
 #[derive(Subcommand)]
 enum Command {
     /// Run only the bus (and optionally the controller node) until `< quit >` or --seconds.
@@ -72,8 +77,8 @@ enum Command {
         /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
         #[arg(long, default_value = "stack")]
         task: String,
-        /// Which plant.
-        #[arg(long, value_enum, default_value_t = PlantKind::Mujoco)]
+        /// Which plant (default: mujoco when built with the `mujoco` feature, else synthetic).
+        #[arg(long, value_enum, default_value_t = DEFAULT_PLANT)]
         plant: PlantKind,
         /// Wall clock at 20 Hz instead of lockstep.
         #[arg(long)]
