@@ -62,10 +62,13 @@ def hil_sim() -> Path:
 @pytest.fixture(scope="session")
 def policies(hil_sim, tmp_path_factory):
     d = tmp_path_factory.mktemp("policies")
-    good, bad = d / "jaco_64.dxpl", d / "mismatched.dxpl"
+    good, other, bad = d / "jaco_64.dxpl", d / "jaco_32.dxpl", d / "mismatched.dxpl"
     subprocess.run([hil_sim, "make-policy", "--out", good, "--hidden", "64,64"], check=True)
+    subprocess.run(
+        [hil_sim, "make-policy", "--out", other, "--hidden", "32,32", "--seed", "2"], check=True
+    )
     subprocess.run([hil_sim, "make-policy", "--out", bad, "--mismatched-layout"], check=True)
-    return {"good": good, "mismatched": bad}
+    return {"good": good, "other": other, "mismatched": bad}
 
 
 class Sim:

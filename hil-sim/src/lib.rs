@@ -9,15 +9,17 @@
 //!   real-time (wall clock) or lockstep (bus time, SYNC-driven) mode.
 //! - [`plant`]: the plant node (synthetic plant, or the MuJoCo environment with feature `mujoco`)
 //!   that sends observations every 50 ms and applies the newest valid action; also the NMT master.
+//! - [`flash`]: policy flashing over CAN (segmented transfer into an inactive slot, verification,
+//!   activation outside operational).
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
 //!
-//! Not here: real SocketCAN hardware (no `AF_CAN` on the development machines) and policy flashing
-//! (see `docs/sil.md`).
+//! Not here: real SocketCAN hardware (no `AF_CAN` on the development machines).
 #![deny(missing_docs)]
 
 pub mod bench;
 pub mod bus;
 pub mod client;
+pub mod flash;
 pub mod node;
 pub mod plant;
 pub mod protocol;

@@ -16,6 +16,8 @@ use dex_runtime::testkit::aligned_copy;
 use dex_runtime::{Clock, Controller, ControllerConfig, Diagnostics, MockClock, Outbox};
 
 use crate::client::{BusClient, ClientError, Received};
+use crate::flash::FlashServer;
+use dex_runtime::can::CanFrame;
 
 /// CANopen SYNC identifier: the lockstep cycle tick.
 pub const SYNC_ID: u16 = 0x080;
@@ -110,11 +112,15 @@ pub fn run_controller_node(
     stop: &AtomicBool,
     status: Option<Arc<Mutex<String>>>,
 ) -> Result<NodeReport, NodeError> {
-    let bytes = policy.map(aligned_copy);
-    let mut controller = Controller::<NODE_WIDTH>::new(cfg);
+    // The controller borrows its policy for its whole life; flashing swaps in new files, so every
+    // policy lives in a leaked aligned buffer (one per load; see `flash`).
+    let bytes: Option<&'static [u8]> =
+        policy.map(|p| Box::leak(Box::new(aligned_copy(p))).as_bytes());
+    let mut controller = Controller::<'static, NODE_WIDTH>::new(cfg);
+    let mut flash = FlashServer::new(cfg.node_id, bytes);
     let mut load_error = None;
-    if let Some(bytes) = bytes.as_ref() {
-        let loaded = PolicyView::decode(bytes.as_bytes())
+    if let Some(bytes) = bytes {
+        let loaded = PolicyView::decode(bytes)
             .map_err(|e| e.to_string())
             .and_then(|view| controller.load_policy(&view).map_err(|e| e.to_string()));
         if let Err(e) = loaded {
@@ -136,8 +142,15 @@ pub fn run_controller_node(
     };
     publish(&controller);
     let result = match mode {
-        TimeMode::RealTime => real_time_loop(port, &mut controller, cfg.period_us, stop, &publish),
-        TimeMode::Lockstep => lockstep_loop(port, &mut controller, stop, &publish),
+        TimeMode::RealTime => real_time_loop(
+            port,
+            &mut controller,
+            &mut flash,
+            cfg.period_us,
+            stop,
+            &publish,
+        ),
+        TimeMode::Lockstep => lockstep_loop(port, &mut controller, &mut flash, stop, &publish),
     };
     match result {
         Ok(()) | Err(ClientError::Closed) => {}
@@ -149,12 +162,38 @@ pub fn run_controller_node(
     })
 }
 
+/// Frames for the flash server go there (activation loads the new file); all others to the
+/// controller.
+fn dispatch(
+    controller: &mut Controller<'static, NODE_WIDTH>,
+    flash: &mut FlashServer,
+    frame: &CanFrame,
+    clock: &impl Clock,
+) -> Outbox {
+    if !flash.is_request(frame) {
+        return controller.on_frame(frame, clock);
+    }
+    let outcome = flash.handle(frame, controller.state());
+    let mut out = Outbox::new();
+    if let Some(bytes) = outcome.activate
+        && let Ok(view) = PolicyView::decode(bytes)
+        && let Err(e) = controller.load_policy(&view)
+    {
+        eprintln!("hil-sim: flashed policy refused at activation: {e}");
+    }
+    if let Some(r) = outcome.response {
+        let _ = out.push(r);
+    }
+    out
+}
+
 fn real_time_loop(
     port: &mut BusClient,
-    controller: &mut Controller<'_, NODE_WIDTH>,
+    controller: &mut Controller<'static, NODE_WIDTH>,
+    flash: &mut FlashServer,
     period_us: u32,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'_, NODE_WIDTH>),
+    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>),
 ) -> Result<(), ClientError> {
     let clock = WallClock::new();
     let period = u64::from(period_us.max(1));
@@ -172,7 +211,7 @@ fn real_time_loop(
         }
         let wait = Duration::from_micros((next - now).min(20_000));
         if let Some(Received::Frame(frame, _)) = port.receive_timeout(wait)? {
-            let out = controller.on_frame(&frame, &clock);
+            let out = dispatch(controller, flash, &frame, &clock);
             send(port, &out)?;
             if !out.is_empty() {
                 publish(controller);
@@ -184,9 +223,10 @@ fn real_time_loop(
 
 fn lockstep_loop(
     port: &mut BusClient,
-    controller: &mut Controller<'_, NODE_WIDTH>,
+    controller: &mut Controller<'static, NODE_WIDTH>,
+    flash: &mut FlashServer,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'_, NODE_WIDTH>),
+    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>),
 ) -> Result<(), ClientError> {
     let clock = MockClock::new(0);
     while !stop.load(Ordering::Relaxed) {
@@ -195,10 +235,10 @@ fn lockstep_loop(
             continue;
         };
         clock.set(ts);
-        let out = if dex_runtime::can::CanFrame::standard_id(&frame) == Some(SYNC_ID) {
+        let out = if frame.standard_id() == Some(SYNC_ID) {
             controller.poll(&clock)
         } else {
-            controller.on_frame(&frame, &clock)
+            dispatch(controller, flash, &frame, &clock)
         };
         send(port, &out)?;
         publish(controller);

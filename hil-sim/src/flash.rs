@@ -1,0 +1,267 @@
+//! Policy flashing over CAN: a segmented transfer (CANopen SDO-block style) into an inactive slot,
+//! verification, and activation only outside operational.
+//!
+//! Frames: requests on `0x600 + node` (tool to controller), responses on `0x580 + node`; byte 0 is
+//! the command, responses set bit 7 (`0x80 | command`) and carry a [`FlashStatus`] in byte 1.
+//!
+//! | request | bytes | response |
+//! |---|---|---|
+//! | `0x01` init | size u32 LE | `0x81 status` |
+//! | `0x02` data | sequence u8, 1..6 data bytes | every [`BLOCK_SEGMENTS`] segments and at the last: `0x82 status seq` |
+//! | `0x03` end | CRC-32/ISO-HDLC of the whole file u32 LE | `0x83 status` (after verification) |
+//! | `0x04` activate | - | `0x84 status` |
+//! | `0x05` abort | - | `0x85 status` |
+//! | `0x06` status | - | `0x86 transfer-state active-crc u32 LE` |
+//!
+//! Verification before a slot may be activated: the length and the transfer CRC, then the policy
+//! file's own checks (`PolicyView::decode`: magic, version, file CRC, layout hash) and the
+//! controller's (layout, capacity, control period) on a scratch controller. Activation is refused in
+//! operational. Anything that goes wrong (sequence gap, abort, a new init, a bad CRC, a refused
+//! file) discards the inactive slot only: the active policy is never touched before activation.
+//!
+//! Host-side slot storage: the runtime's `Controller<'p>` borrows its policy for `'p`, so an
+//! activated slot is moved into a leaked, 8-byte-aligned buffer (`'static`). One leak per
+//! activation is fine for simulation; the firmware needs the runtime change described in
+//! `docs/sil.md` (evaluation over the active slot's bytes passed in per call).
+
+use crc::{CRC_32_ISO_HDLC, Crc};
+use dex_policy::PolicyView;
+use dex_runtime::can::CanFrame;
+use dex_runtime::testkit::{AlignedBytes, aligned_copy};
+use dex_runtime::{Controller, ControllerConfig, State};
+use embedded_can::Frame;
+
+const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+
+/// Request identifier base (`+ node`).
+pub const FLASH_REQUEST_BASE: u16 = 0x600;
+/// Response identifier base (`+ node`).
+pub const FLASH_RESPONSE_BASE: u16 = 0x580;
+/// Segments per acknowledged block.
+pub const BLOCK_SEGMENTS: u32 = 32;
+/// Largest policy file accepted into a slot.
+pub const SLOT_CAPACITY: usize = 512 * 1024;
+
+/// Result codes of flash responses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FlashStatus {
+    /// Accepted.
+    Ok = 0,
+    /// A data segment arrived out of sequence: the transfer is aborted.
+    Sequence = 1,
+    /// The announced size exceeds the slot or more data came than announced.
+    TooLarge = 2,
+    /// Length or transfer CRC did not match.
+    Crc = 3,
+    /// The file is not a valid policy file.
+    Format = 4,
+    /// The controller refuses the file (layout, capacity, period).
+    Refused = 5,
+    /// Activation refused: the controller is operational.
+    Operational = 6,
+    /// Nothing verified to activate.
+    NoImage = 7,
+    /// Data or end without an init.
+    NoTransfer = 8,
+    /// Unknown command.
+    Unknown = 9,
+}
+
+#[derive(Debug)]
+enum Slot {
+    Empty,
+    Receiving {
+        size: usize,
+        next_seq: u8,
+        segments: u32,
+        data: Vec<u8>,
+    },
+    Verified(AlignedBytes),
+}
+
+/// The flash server inside the controller node: the inactive slot and the transfer state.
+#[derive(Debug)]
+pub struct FlashServer {
+    node: u8,
+    slot: Slot,
+    active_crc: u32,
+}
+
+/// What the node must do after a flash request.
+#[derive(Debug)]
+pub struct FlashOutcome {
+    /// Response frame to send, if any.
+    pub response: Option<CanFrame>,
+    /// A verified file to load into the controller now (activation).
+    pub activate: Option<&'static [u8]>,
+}
+
+impl FlashServer {
+    /// A server for `node` whose active policy file is `active` (for the status CRC).
+    pub fn new(node: u8, active: Option<&[u8]>) -> Self {
+        FlashServer {
+            node,
+            slot: Slot::Empty,
+            active_crc: active.map_or(0, |b| CRC32.checksum(b)),
+        }
+    }
+
+    /// Whether `id` is this server's request identifier.
+    pub fn is_request(&self, frame: &CanFrame) -> bool {
+        frame.standard_id() == Some(FLASH_REQUEST_BASE + u16::from(self.node))
+    }
+
+    fn respond(&self, bytes: &[u8]) -> Option<CanFrame> {
+        CanFrame::standard(FLASH_RESPONSE_BASE + u16::from(self.node), bytes)
+    }
+
+    /// Handles one request; `state` is the controller's current state.
+    pub fn handle(&mut self, frame: &CanFrame, state: State) -> FlashOutcome {
+        let data = frame.data();
+        let cmd = data.first().copied().unwrap_or(0);
+        let mut activate = None;
+        let status: Option<FlashStatus> = match cmd {
+            0x01 => Some(self.init(data)),
+            0x02 => self.segment(data),
+            0x03 => Some(self.end(data)),
+            0x04 => {
+                let (s, a) = self.activate(state);
+                activate = a;
+                Some(s)
+            }
+            0x05 => {
+                self.slot = Slot::Empty;
+                Some(FlashStatus::Ok)
+            }
+            0x06 => {
+                let st = match self.slot {
+                    Slot::Empty => 0u8,
+                    Slot::Receiving { .. } => 1,
+                    Slot::Verified(_) => 2,
+                };
+                let c = self.active_crc.to_le_bytes();
+                return FlashOutcome {
+                    response: self.respond(&[0x86, st, c[0], c[1], c[2], c[3]]),
+                    activate: None,
+                };
+            }
+            _ => Some(FlashStatus::Unknown),
+        };
+        let response = status.and_then(|s| {
+            if cmd == 0x02 {
+                let seq = data.get(1).copied().unwrap_or(0);
+                self.respond(&[0x82, s as u8, seq])
+            } else {
+                self.respond(&[0x80 | cmd, s as u8])
+            }
+        });
+        FlashOutcome { response, activate }
+    }
+
+    fn init(&mut self, data: &[u8]) -> FlashStatus {
+        let Some(size) = data.get(1..5) else {
+            self.slot = Slot::Empty;
+            return FlashStatus::Format;
+        };
+        let size = u32::from_le_bytes([size[0], size[1], size[2], size[3]]) as usize;
+        if size == 0 || size > SLOT_CAPACITY {
+            self.slot = Slot::Empty;
+            return FlashStatus::TooLarge;
+        }
+        self.slot = Slot::Receiving {
+            size,
+            next_seq: 0,
+            segments: 0,
+            data: Vec::with_capacity(size),
+        };
+        FlashStatus::Ok
+    }
+
+    /// `None`: segment accepted inside a block (no response).
+    fn segment(&mut self, data: &[u8]) -> Option<FlashStatus> {
+        let Slot::Receiving {
+            size,
+            next_seq,
+            segments,
+            data: buf,
+        } = &mut self.slot
+        else {
+            return Some(FlashStatus::NoTransfer);
+        };
+        let (Some(&seq), Some(payload)) = (data.get(1), data.get(2..)) else {
+            self.slot = Slot::Empty;
+            return Some(FlashStatus::Format);
+        };
+        if seq != *next_seq || payload.is_empty() {
+            self.slot = Slot::Empty;
+            return Some(FlashStatus::Sequence);
+        }
+        if buf.len() + payload.len() > *size {
+            self.slot = Slot::Empty;
+            return Some(FlashStatus::TooLarge);
+        }
+        buf.extend_from_slice(payload);
+        *next_seq = next_seq.wrapping_add(1);
+        *segments += 1;
+        if *segments % BLOCK_SEGMENTS == 0 || buf.len() == *size {
+            Some(FlashStatus::Ok)
+        } else {
+            None
+        }
+    }
+
+    fn end(&mut self, data: &[u8]) -> FlashStatus {
+        let slot = std::mem::replace(&mut self.slot, Slot::Empty);
+        let Slot::Receiving {
+            size, data: buf, ..
+        } = slot
+        else {
+            return FlashStatus::NoTransfer;
+        };
+        let Some(c) = data.get(1..5) else {
+            return FlashStatus::Format;
+        };
+        let crc = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+        if buf.len() != size || CRC32.checksum(&buf) != crc {
+            return FlashStatus::Crc;
+        }
+        let aligned = aligned_copy(&buf);
+        let status = match PolicyView::decode(aligned.as_bytes()) {
+            Err(_) => FlashStatus::Format,
+            Ok(view) => {
+                // The controller's own checks, on a scratch controller (layout, capacity, period).
+                let mut scratch =
+                    Controller::<{ crate::node::NODE_WIDTH }>::new(ControllerConfig {
+                        node_id: self.node,
+                        ..ControllerConfig::default()
+                    });
+                if scratch.load_policy(&view).is_err() {
+                    FlashStatus::Refused
+                } else {
+                    FlashStatus::Ok
+                }
+            }
+        };
+        if status == FlashStatus::Ok {
+            self.slot = Slot::Verified(aligned);
+        }
+        status
+    }
+
+    fn activate(&mut self, state: State) -> (FlashStatus, Option<&'static [u8]>) {
+        if state == State::Operational {
+            return (FlashStatus::Operational, None);
+        }
+        match std::mem::replace(&mut self.slot, Slot::Empty) {
+            Slot::Verified(bytes) => {
+                self.active_crc = CRC32.checksum(bytes.as_bytes());
+                let leaked: &'static AlignedBytes = Box::leak(Box::new(bytes));
+                (FlashStatus::Ok, Some(leaked.as_bytes()))
+            }
+            other => {
+                self.slot = other;
+                (FlashStatus::NoImage, None)
+            }
+        }
+    }
+}

@@ -1,0 +1,118 @@
+"""Policy flashing over CAN (hil-sim/src/flash.rs): segmented transfer into the inactive slot,
+verification, activation only outside operational; an interrupted, corrupted or refused transfer
+leaves the active policy untouched."""
+import zlib
+
+import can
+
+from conftest import (
+    NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect, decode_action, nmt,
+    observation, wait_heartbeat,
+)
+
+REQ, RESP = 0x600 + NODE, 0x580 + NODE
+OK, SEQUENCE, CRC, FORMAT, REFUSED, OPERATIONAL_REFUSED, NO_IMAGE = 0, 1, 3, 4, 5, 6, 7
+
+
+def request(bus, data, wait=True):
+    bus.send(can.Message(arbitration_id=REQ, data=data, is_extended_id=False))
+    if not wait:
+        return None
+    got = collect(bus, 1.0, lambda m: m.arbitration_id == RESP)
+    assert got and got[-1][1].arbitration_id == RESP, "no flash response"
+    return bytes(got[-1][1].data)
+
+
+def flash(bus, image, crc=None, cut_at=None):
+    """Init, data segments (acknowledged every 32), end. Returns the end status (or None if cut)."""
+    r = request(bus, [0x01, *len(image).to_bytes(4, "little")])
+    assert r == bytes([0x81, OK])
+    segments = [image[i:i + 6] for i in range(0, len(image), 6)]
+    for n, seg in enumerate(segments):
+        if cut_at is not None and n == cut_at:
+            return None
+        last = n + 1 == len(segments)
+        r = request(bus, [0x02, n & 0xFF, *seg], wait=(n + 1) % 32 == 0 or last)
+        if r is not None:
+            assert r == bytes([0x82, OK, n & 0xFF]), r
+    crc = zlib.crc32(image) if crc is None else crc
+    return request(bus, [0x03, *crc.to_bytes(4, "little")])[1]
+
+
+def status(bus):
+    r = request(bus, [0x06])
+    return r[1], int.from_bytes(r[2:6], "little")
+
+
+def runs_policy(bus):
+    """Start, one observation, an answer, stop again."""
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    tx = PlantTx()
+    tx.send(bus, observation(1))
+    got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x282)
+    nmt(bus, NMT_STOP)
+    wait_heartbeat(bus, STOPPED, 1.0)
+    return tx.sample in decode_action([m for _, m in got])
+
+
+def test_flash_verify_activate(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    old = policies["good"].read_bytes()
+    new = policies["other"].read_bytes()
+    wait_heartbeat(bus, PREOP, 2.0)
+    assert status(bus) == (0, zlib.crc32(old))
+    assert flash(bus, new) == OK
+    assert status(bus)[0] == 2  # verified, not active yet
+    assert status(bus)[1] == zlib.crc32(old)
+    assert request(bus, [0x04]) == bytes([0x84, OK])
+    assert status(bus) == (0, zlib.crc32(new))
+    got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x290)
+    assert got and got[-1][1].arbitration_id == 0x290  # policy info announced again
+    assert runs_policy(bus)
+
+
+def test_interrupted_transfer_leaves_the_active_policy(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    old = policies["good"].read_bytes()
+    wait_heartbeat(bus, PREOP, 2.0)
+    assert flash(bus, policies["other"].read_bytes(), cut_at=200) is None
+    assert status(bus) == (1, zlib.crc32(old))  # still receiving, old one active
+    assert request(bus, [0x04]) == bytes([0x84, NO_IMAGE])
+    # A segment out of sequence aborts the transfer.
+    assert request(bus, [0x02, 0x55, 1, 2, 3]) == bytes([0x82, SEQUENCE, 0x55])
+    assert status(bus) == (0, zlib.crc32(old))
+    assert runs_policy(bus)
+
+
+def test_corrupted_or_refused_images_are_rejected(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    old = policies["good"].read_bytes()
+    new = bytearray(policies["other"].read_bytes())
+    wait_heartbeat(bus, PREOP, 2.0)
+    good_crc = zlib.crc32(new)
+    new[len(new) // 2] ^= 0x01
+    assert flash(bus, bytes(new), crc=good_crc) == CRC  # corrupted on the way
+    assert flash(bus, bytes(new)) == FORMAT  # transfer intact, file CRC wrong
+    assert flash(bus, policies["mismatched"].read_bytes()) == REFUSED  # layout
+    assert request(bus, [0x04]) == bytes([0x84, NO_IMAGE])
+    assert status(bus) == (0, zlib.crc32(old))
+    assert runs_policy(bus)
+
+
+def test_activation_is_refused_while_operational(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    wait_heartbeat(bus, PREOP, 2.0)
+    new = policies["other"].read_bytes()
+    assert flash(bus, new) == OK
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    assert request(bus, [0x04]) == bytes([0x84, OPERATIONAL_REFUSED])
+    nmt(bus, NMT_STOP)
+    wait_heartbeat(bus, STOPPED, 1.0)
+    assert request(bus, [0x04]) == bytes([0x84, OK])
+    assert status(bus) == (0, zlib.crc32(new))
