@@ -12,7 +12,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
 use dex_hil_sim::node::{TimeMode, spawn_controller_node};
-use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant};
+use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant, episode_seed};
 
 #[derive(Parser)]
 #[command(
@@ -71,7 +71,7 @@ enum Command {
         /// Episodes.
         #[arg(long, default_value_t = 1)]
         episodes: u32,
-        /// Seed of the first episode (episode i uses seed + i).
+        /// Run seed; episode i starts from `episode_seed(seed, i)` as in `trainer eval`.
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
@@ -255,7 +255,7 @@ fn run_command(
         let mut successes = 0;
         let mut total = 0.0;
         for e in 0..episodes {
-            let r = node.episode(plant.as_mut(), seed + u64::from(e), u32::MAX)?;
+            let r = node.episode(plant.as_mut(), episode_seed(seed, u64::from(e)), u32::MAX)?;
             println!(
                 "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
                 r.seed, r.episode_return, r.success, r.steps, r.steps_without_action

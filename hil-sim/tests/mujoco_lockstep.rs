@@ -1,0 +1,76 @@
+//! With the MuJoCo plant: a lockstep episode over the bus gives the same actions, return and
+//! success as the runtime evaluator driving the environment directly with the CAN quantisation on
+//! both sides (what `trainer eval --can-quantisation` measures).
+#![cfg(feature = "mujoco")]
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
+use dex_hil_sim::node::{TimeMode, spawn_controller_node};
+use dex_hil_sim::plant::{MujocoPlant, Plant, PlantNode, PlantTiming};
+use dex_policy::PolicyView;
+use dex_runtime::Mlp;
+use dex_runtime::can::messages::{quantise_action, quantise_observation};
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_runtime::testkit::{aligned_copy, jaco_policy};
+use dex_trainer::env::Task;
+
+#[test]
+fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
+    let policy = jaco_policy(&[64, 64], 9).unwrap();
+    let seed = 4;
+
+    let bus = Bus::start(BusConfig {
+        clock: BusClock::Virtual,
+        ..BusConfig::default()
+    })
+    .unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let node = spawn_controller_node(
+        bus.addr(),
+        Some(policy.clone()),
+        TimeMode::Lockstep,
+        Arc::clone(&stop),
+        None,
+    )
+    .unwrap();
+    let mut plant_node = PlantNode::connect(&bus, PlantTiming::Lockstep, 0x10).unwrap();
+    plant_node.record = Some(Vec::new());
+    plant_node.start_controller().unwrap();
+    let mut plant = MujocoPlant::new(Task::Stack).unwrap();
+    let report = plant_node.episode(&mut plant, seed, u32::MAX).unwrap();
+    let over_bus = plant_node.record.take().unwrap();
+    stop.store(true, Ordering::SeqCst);
+    node.join().unwrap().unwrap();
+    bus.shutdown();
+
+    let bytes = aligned_copy(&policy);
+    let view = PolicyView::decode(bytes.as_bytes()).unwrap();
+    let mut mlp = Mlp::<256>::new(&view).unwrap();
+    let mut plant = MujocoPlant::new(Task::Stack).unwrap();
+    let mut obs = plant.reset(seed).unwrap();
+    let mut total = 0.0f64;
+    let mut direct = Vec::new();
+    let success = loop {
+        let input: [f32; OBS_DIM] = core::array::from_fn(|i| quantise_observation(i, obs[i]));
+        let mut action = [0.0f32; ACT_DIM];
+        mlp.act(&input, &mut action).unwrap();
+        let action = action.map(quantise_action);
+        direct.push(action);
+        let s = plant.step(&action).unwrap();
+        total += f64::from(s.reward);
+        obs = s.observation;
+        if s.done {
+            break s.success;
+        }
+    };
+    assert_eq!(over_bus.len(), direct.len());
+    for (i, (a, b)) in over_bus.iter().zip(&direct).enumerate() {
+        assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "step {i}");
+    }
+    assert_eq!(report.episode_return.to_bits(), total.to_bits());
+    assert_eq!(report.success, success);
+    assert_eq!(report.steps_without_action, 0);
+}
