@@ -265,3 +265,113 @@ impl FlashServer {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    fn req(data: &[u8]) -> CanFrame {
+        CanFrame::standard(FLASH_REQUEST_BASE + 0x10, data).unwrap()
+    }
+
+    /// Sends `image` (cut after `cut` segments if given); returns the end status.
+    fn transfer(s: &mut FlashServer, image: &[u8], crc: u32, cut: Option<usize>) -> Option<u8> {
+        let size = (image.len() as u32).to_le_bytes();
+        let r = s.handle(
+            &req(&[1, size[0], size[1], size[2], size[3]]),
+            State::PreOperational,
+        );
+        assert_eq!(r.response.unwrap().data(), &[0x81, 0]);
+        for (n, chunk) in image.chunks(6).enumerate() {
+            if cut == Some(n) {
+                return None;
+            }
+            let mut d = vec![2, n as u8];
+            d.extend_from_slice(chunk);
+            let r = s.handle(&req(&d), State::PreOperational);
+            if let Some(f) = r.response {
+                assert_eq!(f.data()[1], 0);
+            }
+        }
+        let c = crc.to_le_bytes();
+        let r = s.handle(&req(&[3, c[0], c[1], c[2], c[3]]), State::PreOperational);
+        Some(r.response.unwrap().data()[1])
+    }
+
+    #[test]
+    fn transfer_verify_activate_and_every_refusal() {
+        let old = dex_runtime::testkit::jaco_policy(&[16], 1).unwrap();
+        let new = dex_runtime::testkit::jaco_policy(&[8, 8], 2).unwrap();
+        let mut s = FlashServer::new(0x10, Some(&old));
+        let old_crc = CRC32.checksum(&old);
+        let status = |s: &mut FlashServer| {
+            let f = s
+                .handle(&req(&[6]), State::PreOperational)
+                .response
+                .unwrap();
+            (
+                f.data()[1],
+                u32::from_le_bytes([f.data()[2], f.data()[3], f.data()[4], f.data()[5]]),
+            )
+        };
+        // Interrupted: nothing to activate, old one still reported active.
+        assert_eq!(transfer(&mut s, &new, CRC32.checksum(&new), Some(10)), None);
+        assert_eq!(status(&mut s), (1, old_crc));
+        let r = s.handle(&req(&[4]), State::PreOperational);
+        assert_eq!(
+            r.response.unwrap().data(),
+            &[0x84, FlashStatus::NoImage as u8]
+        );
+        assert!(r.activate.is_none());
+        // Wrong transfer CRC; corrupted file with a matching transfer CRC.
+        assert_eq!(
+            transfer(&mut s, &new, 0xDEAD_BEEF, None),
+            Some(FlashStatus::Crc as u8)
+        );
+        let mut bad = new.clone();
+        let mid = bad.len() / 2;
+        bad[mid] ^= 0x40;
+        assert_eq!(
+            transfer(&mut s, &bad, CRC32.checksum(&bad), None),
+            Some(FlashStatus::Format as u8)
+        );
+        // Verified, then refused while operational, then activated.
+        assert_eq!(transfer(&mut s, &new, CRC32.checksum(&new), None), Some(0));
+        let r = s.handle(&req(&[4]), State::Operational);
+        assert_eq!(
+            r.response.unwrap().data(),
+            &[0x84, FlashStatus::Operational as u8]
+        );
+        assert_eq!(status(&mut s), (2, old_crc));
+        let r = s.handle(&req(&[4]), State::SafeStop);
+        assert_eq!(r.response.unwrap().data(), &[0x84, 0]);
+        assert_eq!(r.activate.unwrap(), &new[..]);
+        assert_eq!(status(&mut s), (0, CRC32.checksum(&new)));
+        // Out-of-sequence segment and data without init.
+        let r = s.handle(&req(&[2, 0, 1, 2]), State::PreOperational);
+        assert_eq!(
+            r.response.unwrap().data(),
+            &[0x82, FlashStatus::NoTransfer as u8, 0]
+        );
+        let size = 100u32.to_le_bytes();
+        s.handle(
+            &req(&[1, size[0], size[1], size[2], size[3]]),
+            State::PreOperational,
+        );
+        let r = s.handle(&req(&[2, 5, 1, 2]), State::PreOperational);
+        assert_eq!(
+            r.response.unwrap().data(),
+            &[0x82, FlashStatus::Sequence as u8, 5]
+        );
+        let too_big = (SLOT_CAPACITY as u32 + 1).to_le_bytes();
+        let r = s.handle(
+            &req(&[1, too_big[0], too_big[1], too_big[2], too_big[3]]),
+            State::PreOperational,
+        );
+        assert_eq!(
+            r.response.unwrap().data(),
+            &[0x81, FlashStatus::TooLarge as u8]
+        );
+    }
+}
