@@ -224,7 +224,8 @@ pub struct EpisodeReport {
     pub success: bool,
     /// Steps taken.
     pub steps: u32,
-    /// Steps applied with no fresh action (zero velocity instead).
+    /// Steps without an answer to their own observation (the newest older action, at most
+    /// [`ACTION_HOLD_STEPS`] steps old, or zero velocity was applied).
     pub steps_without_action: u32,
 }
 
@@ -284,6 +285,10 @@ impl ActionAssembler {
     }
 }
 
+/// Steps an action stays valid at the plant without a newer one (then zero velocity), matching
+/// the controller's 3-cycle observation watchdog.
+pub const ACTION_HOLD_STEPS: u64 = 3;
+
 /// Timing of the node.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PlantTiming {
@@ -305,6 +310,8 @@ pub struct PlantNode<'b> {
     sim_us: u64,
     controller_state: Option<u8>,
     emcy: Vec<u16>,
+    step_index: u64,
+    newest_at: u64,
     /// Every applied command, when recording is on (for determinism checks).
     pub record: Option<Vec<[f32; ACT_DIM]>>,
 }
@@ -323,6 +330,8 @@ impl<'b> PlantNode<'b> {
             sim_us: 0,
             controller_state: None,
             emcy: Vec::new(),
+            step_index: 0,
+            newest_at: 0,
             record: None,
         })
     }
@@ -356,7 +365,11 @@ impl<'b> PlantNode<'b> {
             }
             None
         } else {
-            self.actions.push(&f)
+            let done = self.actions.push(&f);
+            if done.is_some() {
+                self.newest_at = self.step_index;
+            }
+            done
         }
     }
 
@@ -425,14 +438,10 @@ impl<'b> PlantNode<'b> {
                 self.client.queue(&f);
             }
             self.client.flush()?;
-            let command = self.await_action()?;
-            let command = match command {
-                Some(c) => c,
-                None => {
-                    report.steps_without_action += 1;
-                    [0.0; ACT_DIM]
-                }
-            };
+            let (command, fresh) = self.await_action()?;
+            if !fresh {
+                report.steps_without_action += 1;
+            }
             if let Some(rec) = self.record.as_mut() {
                 rec.push(command);
             }
@@ -449,8 +458,11 @@ impl<'b> PlantNode<'b> {
     }
 
     /// Waits for the answer to the current sample: in lockstep until it arrives (or the controller
-    /// leaves operational, or 2 s pass), in real time for at most 20 ms; then the newest action.
-    fn await_action(&mut self) -> Result<Option<[f32; ACT_DIM]>, PlantError> {
+    /// leaves operational, or 2 s pass), in real time for at most 20 ms. Returns the command to
+    /// apply, the newest valid action if it arrived within the last [`ACTION_HOLD_STEPS`] steps
+    /// (else zero velocity), and whether it answers this step's observation.
+    fn await_action(&mut self) -> Result<([f32; ACT_DIM], bool), PlantError> {
+        self.step_index += 1;
         let limit = match self.timing {
             PlantTiming::Lockstep => Duration::from_secs(2),
             PlantTiming::RealTime => Duration::from_millis(20),
@@ -472,9 +484,11 @@ impl<'b> PlantNode<'b> {
                 break;
             }
         }
-        Ok(match self.actions.newest {
-            Some((a, s)) if s == self.sample => Some(a),
-            _ => None,
-        })
+        let fresh = matches!(self.actions.newest, Some((_, s)) if s == self.sample);
+        let command = match self.actions.newest {
+            Some((a, _)) if self.step_index - self.newest_at <= ACTION_HOLD_STEPS => a,
+            _ => [0.0; ACT_DIM],
+        };
+        Ok((command, fresh))
     }
 }
