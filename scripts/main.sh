@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# README command one: all set-up on a fresh machine, then the main job: train the default task
+# (Reach, DPG-R), export the policy file, evaluate the file through the controller's runtime, and
+# show what is in it. Extra arguments go to `trainer train` (e.g. --task grasp -R 40 --transitions 300000).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+command -v cargo >/dev/null || { echo "error: cargo not found: install Rust with rustup" >&2; exit 1; }
+command -v python3 >/dev/null || { echo "error: python3 not found (needed to fetch MuJoCo from PyPI)" >&2; exit 1; }
+if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
+  echo "installing fonts-dejavu-core (plot labels)"
+  apt-get install -y --no-install-recommends fonts-dejavu-core >/dev/null 2>&1 \
+    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends fonts-dejavu-core >/dev/null; } \
+    || { echo "error: cannot install fonts-dejavu-core (needed for PNG plots)" >&2; exit 1; }
+fi
+bash scripts/setup-mujoco.sh
+cargo build --release --locked -p dex-trainer --bin trainer -p dex-policy --features dex-policy/cli --bin policy
+OUT=${OUT:-runs/main}
+./target/release/trainer train --task reach --out "$OUT" --resume "$@"
+./target/release/trainer eval "$OUT/seed-0/policy.dxpl" --episodes 100
+./target/release/policy inspect "$OUT/seed-0/policy.dxpl"
+echo "plots: $OUT/return.png $OUT/success.png"

@@ -1,0 +1,242 @@
+//! `trainer train` settings: defaults, then a TOML file, then command-line flags, validated once.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
+
+use dex_trainer::env::{EnvConfig, Reward, Task};
+use dex_trainer::learn::RunConfig;
+
+/// Task names on the command line and in config files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TaskArg {
+    /// Bring the pinch site to brick 1 (50 steps; learns in minutes).
+    Reach,
+    /// Lift brick 1.
+    Grasp,
+    /// Stack brick 1, starting in the hand.
+    StackInHand,
+    /// Pick up brick 1 and stack it.
+    Stack,
+}
+
+impl TaskArg {
+    /// The environment's task.
+    pub fn task(self) -> Task {
+        match self {
+            TaskArg::Reach => Task::Reach,
+            TaskArg::Grasp => Task::Grasp,
+            TaskArg::StackInHand => Task::StackInHand,
+            TaskArg::Stack => Task::Stack,
+        }
+    }
+
+    /// From a policy file's task.
+    pub fn from_policy(task: dex_policy::Task) -> Self {
+        match task {
+            dex_policy::Task::Reach => TaskArg::Reach,
+            dex_policy::Task::Grasp => TaskArg::Grasp,
+            dex_policy::Task::StackInHand => TaskArg::StackInHand,
+            dex_policy::Task::Stack => TaskArg::Stack,
+        }
+    }
+}
+
+/// Reward names on the command line and in config files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RewardArg {
+    /// The task's own sparse reward.
+    TaskDefault,
+    /// Paper: 1 if stacked.
+    SparseStack,
+    /// Paper: 1 stacked, 0.25 grasped.
+    GraspShaping,
+    /// Paper: 1 stacked, 0.25 grasped, 0.125 reached.
+    ReachGraspShaping,
+    /// Paper: full composite with the tanh^2 distance terms.
+    FullComposite,
+    /// 1 if brick 1 is lifted.
+    SparseGrasp,
+    /// 1 if the pinch site is in the reach box.
+    SparseReach,
+}
+
+impl RewardArg {
+    /// The environment configuration for `task` with this reward.
+    pub fn env_config(self, task: Task) -> EnvConfig {
+        let base = EnvConfig::new(task);
+        let reward = match self {
+            RewardArg::TaskDefault => return base,
+            RewardArg::SparseStack => Reward::SparseStack,
+            RewardArg::GraspShaping => Reward::GraspShaping,
+            RewardArg::ReachGraspShaping => Reward::ReachGraspShaping,
+            RewardArg::FullComposite => Reward::FullComposite,
+            RewardArg::SparseGrasp => Reward::SparseGrasp,
+            RewardArg::SparseReach => Reward::SparseReach,
+        };
+        base.with_reward(reward)
+    }
+}
+
+/// Everything `trainer train` does, after merging defaults, the file and the flags.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainSettings {
+    /// Task to learn.
+    pub task: TaskArg,
+    /// Reward function.
+    pub reward: RewardArg,
+    /// Transitions per seed (all workers together).
+    pub transitions: u64,
+    /// Seeds, one run each.
+    pub seeds: Vec<u64>,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Checkpoint every this many transitions.
+    pub checkpoint_every: u64,
+    /// Episodes of the evaluation of the exported policy (through the runtime).
+    pub final_eval_episodes: u32,
+    /// Threads for that evaluation.
+    pub eval_threads: usize,
+    /// The learner.
+    pub run: RunConfig,
+}
+
+impl Default for TrainSettings {
+    fn default() -> Self {
+        let mut run = RunConfig::default();
+        run.ddpg.actor_hidden = vec![128, 128];
+        run.ddpg.critic_hidden = vec![128, 128];
+        run.updates_per_step = 1;
+        run.replay.capacity = 200_000;
+        TrainSettings {
+            task: TaskArg::Reach,
+            reward: RewardArg::TaskDefault,
+            transitions: 30_000,
+            seeds: vec![0],
+            out: PathBuf::from("runs/reach"),
+            checkpoint_every: 10_000,
+            final_eval_episodes: 50,
+            eval_threads: 2,
+            run,
+        }
+    }
+}
+
+/// Overlays `overlay` onto `base` key by key (tables merge, other values replace).
+fn merge(base: &mut toml::Value, overlay: toml::Value) {
+    match (base, overlay) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(slot) => merge(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
+}
+
+/// Every key of `overlay` must exist in `parsed` (the settings read back): catches typos that serde
+/// would silently skip.
+fn check_keys(overlay: &toml::Value, parsed: &toml::Value, path: &str) -> anyhow::Result<()> {
+    if let (toml::Value::Table(o), toml::Value::Table(p)) = (overlay, parsed) {
+        for (k, v) in o {
+            let here = if path.is_empty() {
+                k.clone()
+            } else {
+                format!("{path}.{k}")
+            };
+            match p.get(k) {
+                Some(pv) => check_keys(v, pv, &here)?,
+                None => bail!("unknown setting `{here}`"),
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Defaults overlaid with the TOML file at `path`.
+pub fn load(path: Option<&Path>) -> anyhow::Result<TrainSettings> {
+    let Some(path) = path else {
+        return Ok(TrainSettings::default());
+    };
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let overlay: toml::Value =
+        toml::from_str(&text).with_context(|| format!("{} is not valid TOML", path.display()))?;
+    let mut base = toml::Value::try_from(TrainSettings::default())?;
+    merge(&mut base, overlay.clone());
+    let settings: TrainSettings = base
+        .try_into()
+        .with_context(|| format!("bad value in {}", path.display()))?;
+    check_keys(&overlay, &toml::Value::try_from(&settings)?, "")
+        .with_context(|| format!("in {}", path.display()))?;
+    Ok(settings)
+}
+
+impl TrainSettings {
+    /// Checks what the learner does not check itself.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        if self.seeds.is_empty() {
+            bail!("at least one seed is needed");
+        }
+        if self.transitions == 0 {
+            bail!("transitions must be positive");
+        }
+        if self.checkpoint_every == 0 {
+            bail!("checkpoint_every must be positive");
+        }
+        self.run.validate().context("invalid learner settings")?;
+        Ok(())
+    }
+
+    /// The settings as TOML (written into each run folder).
+    pub fn to_toml(&self) -> anyhow::Result<String> {
+        Ok(toml::to_string_pretty(self)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_values_override_defaults_and_typos_are_errors() {
+        let dir = std::env::temp_dir().join(format!("dex-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("good.toml");
+        std::fs::write(
+            &good,
+            "task = \"grasp\"\ntransitions = 5\n[run]\nupdates_per_step = 40\n[run.ddpg]\nbatch_size = 256\n",
+        )
+        .unwrap();
+        let s = load(Some(&good)).unwrap();
+        assert_eq!(s.task, TaskArg::Grasp);
+        assert_eq!(s.transitions, 5);
+        assert_eq!(s.run.updates_per_step, 40);
+        assert_eq!(s.run.ddpg.batch_size, 256);
+        assert_eq!(s.run.ddpg.gamma, RunConfig::default().ddpg.gamma);
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, "[run]\nupdates_per_stepp = 40\n").unwrap();
+        let e = load(Some(&bad)).unwrap_err();
+        assert!(format!("{e:#}").contains("run.updates_per_stepp"), "{e:#}");
+        std::fs::write(&bad, "task = \"juggle\"\n").unwrap();
+        assert!(load(Some(&bad)).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn round_trips_through_toml() {
+        let s = TrainSettings::default();
+        let text = s.to_toml().unwrap();
+        let back: TrainSettings = toml::from_str(&text).unwrap();
+        assert_eq!(back, s);
+    }
+}

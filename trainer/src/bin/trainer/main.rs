@@ -1,0 +1,164 @@
+//! `trainer`: train DPG-R / ADPG-R policies on the Jaco tasks, export them as policy files, evaluate
+//! the files through the controller's runtime, and plot learning curves.
+//!
+//! ```text
+//! trainer train [--config FILE.toml] [--task reach] [--transitions N] [--seeds 0,1,2] [-R 5] [-W 2] ...
+//! trainer eval POLICY.dxpl [--episodes 100] [--seed 0]
+//! trainer plot RUN_DIR
+//! trainer export RUN_DIR [--seed 0] [--out FILE.dxpl]
+//! ```
+
+mod config;
+mod train;
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+
+use config::{RewardArg, TaskArg};
+
+#[derive(Parser)]
+#[command(
+    name = "trainer",
+    version,
+    about = "DPG-R / ADPG-R on the Jaco stacking tasks"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Train one run per seed; writes checkpoints, eval.jsonl, policy.dxpl per seed, and plots.
+    Train(TrainArgs),
+    /// Success rate of a policy file over random starts, with a 95% confidence interval.
+    Eval(EvalArgs),
+    /// Plot a run folder's learning curves (PNG and SVG).
+    Plot {
+        /// Run folder (holds seed-*/eval.jsonl).
+        run: PathBuf,
+    },
+    /// Export a seed's latest checkpoint as a policy file.
+    Export(ExportArgs),
+}
+
+/// Flags override the config file, which overrides the defaults.
+#[derive(Args, Debug, Default)]
+struct TrainArgs {
+    /// TOML settings file (see experiments/ for examples).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Task.
+    #[arg(long, value_enum)]
+    task: Option<TaskArg>,
+    /// Reward function.
+    #[arg(long, value_enum)]
+    reward: Option<RewardArg>,
+    /// Mini-batch updates per environment step (the paper's R).
+    #[arg(short = 'R', long = "replay-steps")]
+    replay_steps: Option<usize>,
+    /// Worker threads (the paper's ADPG-R workers; 1 = DPG-R).
+    #[arg(short = 'W', long)]
+    workers: Option<usize>,
+    /// Seeds, comma-separated (one run each).
+    #[arg(long, value_delimiter = ',')]
+    seeds: Option<Vec<u64>>,
+    /// Transition budget per seed (all workers together).
+    #[arg(long)]
+    transitions: Option<u64>,
+    /// Learning rate of the actor and the critic (sets both; the paper tunes only this).
+    #[arg(long)]
+    lr: Option<f32>,
+    /// Actor learning rate.
+    #[arg(long)]
+    actor_lr: Option<f32>,
+    /// Critic learning rate.
+    #[arg(long)]
+    critic_lr: Option<f32>,
+    /// Mini-batch size.
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Hidden layer widths of actor and critic, comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    hidden: Option<Vec<usize>>,
+    /// One replay buffer per worker instead of a shared one.
+    #[arg(long)]
+    per_worker_replay: bool,
+    /// Output folder.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Checkpoint period in transitions.
+    #[arg(long)]
+    checkpoint_every: Option<u64>,
+    /// Episodes of the final evaluation of each exported policy.
+    #[arg(long)]
+    final_eval_episodes: Option<u32>,
+    /// Continue from the checkpoints in the output folder.
+    #[arg(long)]
+    resume: bool,
+    /// No progress bar (logs only).
+    #[arg(long)]
+    quiet: bool,
+}
+
+#[derive(Args, Debug)]
+struct EvalArgs {
+    /// Policy file.
+    policy: PathBuf,
+    /// Task (default: the policy's own).
+    #[arg(long, value_enum)]
+    task: Option<TaskArg>,
+    /// Episodes (random starts).
+    #[arg(long, default_value_t = 100)]
+    episodes: u32,
+    /// Seed of the start states.
+    #[arg(long, default_value_t = 1_000_000)]
+    seed: u64,
+    /// Worker threads.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Skip the CAN quantisation of observations and actions.
+    #[arg(long)]
+    no_can_quantisation: bool,
+}
+
+#[derive(Args, Debug)]
+struct ExportArgs {
+    /// Run folder.
+    run: PathBuf,
+    /// Seed whose checkpoint to export.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Output file (default RUN/seed-S/policy.dxpl).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Train(args) => train::train(args),
+        Command::Eval(args) => train::eval(&args),
+        Command::Plot { run } => {
+            let files = train::plot_run(&run)?;
+            for f in files {
+                println!("wrote {}", f.display());
+            }
+            Ok(())
+        }
+        Command::Export(args) => {
+            let dir = args.run.join(format!("seed-{}", args.seed));
+            let out = args.out.unwrap_or_else(|| dir.join("policy.dxpl"));
+            let settings: config::TrainSettings = toml::from_str(
+                &std::fs::read_to_string(dir.join("settings.toml"))
+                    .with_context(|| format!("{} is not a run folder", dir.display()))?,
+            )
+            .context("settings.toml")?;
+            train::export_checkpoint(&dir, &settings, args.seed, &out)?;
+            println!("wrote {}", out.display());
+            Ok(())
+        }
+    }
+}

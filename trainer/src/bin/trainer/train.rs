@@ -1,0 +1,423 @@
+//! The `trainer` subcommands' work: training loop with checkpoints, export, evaluation and plots.
+
+use std::fs::OpenOptions;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_trainer::env::Scene;
+use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
+use dex_trainer::export::{ExportInfo, export_actor};
+use dex_trainer::jaco::JacoLearnEnv;
+use dex_trainer::learn::{Event, Trainer};
+use dex_trainer::plot::{Condition, Metric, XAxis, plot, read_eval_log};
+
+use crate::config::{self, TaskArg, TrainSettings};
+use crate::{EvalArgs, TrainArgs};
+
+/// Writes `bytes` to `path` atomically (temporary file, fsync, rename).
+fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let tmp = path.with_extension("tmp");
+    {
+        let mut f = std::fs::File::create(&tmp)
+            .with_context(|| format!("cannot create {}", tmp.display()))?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
+    if let Some(t) = a.task {
+        s.task = t;
+        if a.config.is_none() && a.out.is_none() {
+            s.out = PathBuf::from(format!("runs/{}", format!("{t:?}").to_lowercase()));
+        }
+    }
+    if let Some(r) = a.reward {
+        s.reward = r;
+    }
+    if let Some(r) = a.replay_steps {
+        s.run.updates_per_step = r;
+    }
+    if let Some(w) = a.workers {
+        s.run.workers = w;
+    }
+    if let Some(seeds) = &a.seeds {
+        s.seeds.clone_from(seeds);
+    }
+    if let Some(n) = a.transitions {
+        s.transitions = n;
+    }
+    if let Some(lr) = a.lr {
+        s.run.actor_adam.lr = lr;
+        s.run.critic_adam.lr = lr;
+    }
+    if let Some(lr) = a.actor_lr {
+        s.run.actor_adam.lr = lr;
+    }
+    if let Some(lr) = a.critic_lr {
+        s.run.critic_adam.lr = lr;
+    }
+    if let Some(b) = a.batch {
+        s.run.ddpg.batch_size = b;
+    }
+    if let Some(h) = &a.hidden {
+        s.run.ddpg.actor_hidden.clone_from(h);
+        s.run.ddpg.critic_hidden.clone_from(h);
+    }
+    if a.per_worker_replay {
+        s.run.replay.shared = false;
+    }
+    if let Some(o) = &a.out {
+        s.out.clone_from(o);
+    }
+    if let Some(c) = a.checkpoint_every {
+        s.checkpoint_every = c;
+    }
+    if let Some(e) = a.final_eval_episodes {
+        s.final_eval_episodes = e;
+    }
+}
+
+fn load_scene() -> anyhow::Result<Scene> {
+    Scene::load().context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")
+}
+
+fn bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(len);
+    if let Ok(style) = ProgressStyle::with_template(template) {
+        b.set_style(style.progress_chars("=> "));
+    }
+    b
+}
+
+/// `trainer train`.
+pub fn train(args: TrainArgs) -> anyhow::Result<()> {
+    let mut s = config::load(args.config.as_deref())?;
+    apply_flags(&mut s, &args);
+    s.validate()?;
+    let scene = load_scene()?;
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("cannot install the Ctrl-C handler")?;
+    }
+    std::fs::create_dir_all(&s.out)
+        .with_context(|| format!("cannot create {}", s.out.display()))?;
+    write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
+    println!(
+        "training {:?} ({:?} reward), {} transitions x {} seed(s), R = {}, W = {}, into {}",
+        s.task,
+        s.reward,
+        s.transitions,
+        s.seeds.len(),
+        s.run.updates_per_step,
+        s.run.workers,
+        s.out.display()
+    );
+    for &seed in &s.seeds {
+        if !train_seed(&s, seed, &scene, &stop, &args)? {
+            println!("stopped: checkpoint saved; continue with the same command and --resume");
+            return Ok(());
+        }
+    }
+    for f in plot_run(&s.out)? {
+        println!("plot: {}", f.display());
+    }
+    Ok(())
+}
+
+/// Trains one seed; returns false if interrupted.
+fn train_seed(
+    s: &TrainSettings,
+    seed: u64,
+    scene: &Scene,
+    stop: &AtomicBool,
+    args: &TrainArgs,
+) -> anyhow::Result<bool> {
+    let dir = s.out.join(format!("seed-{seed}"));
+    std::fs::create_dir_all(&dir)?;
+    let ckpt = dir.join("checkpoint.bin");
+    let log_path = dir.join("eval.jsonl");
+    let mut per_seed = s.clone();
+    per_seed.seeds = vec![seed];
+    per_seed.run.seed = seed;
+    let mut trainer = if ckpt.exists() {
+        if !args.resume {
+            bail!(
+                "{} exists: add --resume to continue it, or choose another --out",
+                ckpt.display()
+            );
+        }
+        let t = Trainer::load(&ckpt)
+            .with_context(|| format!("cannot resume from {}", ckpt.display()))?;
+        if t.config() != &per_seed.run {
+            bail!(
+                "settings differ from the checkpoint's in {}; resume with the same settings",
+                dir.display()
+            );
+        }
+        t
+    } else {
+        let _ = std::fs::remove_file(&log_path);
+        Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?
+    };
+    write_atomic(&dir.join("settings.toml"), per_seed.to_toml()?.as_bytes())?;
+    let mut log = OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("cannot open {}", log_path.display()))?;
+    let env_cfg = s.reward.env_config(s.task.task());
+    let pb = bar(
+        s.transitions,
+        args.quiet,
+        "{prefix} [{elapsed_precise}] [{bar:30}] {pos}/{len} transitions {msg}",
+    );
+    pb.set_prefix(format!("seed {seed}"));
+    pb.set_position(trainer.progress().transitions);
+    let started = Instant::now();
+    let start_updates = trainer.progress().updates;
+    let start_transitions = trainer.progress().transitions;
+    let mut last_eval = String::from("no evaluation yet");
+    loop {
+        let done = trainer.progress().transitions;
+        if done >= s.transitions {
+            break;
+        }
+        let target = (done / s.checkpoint_every + 1) * s.checkpoint_every;
+        let mut write_err = None;
+        let summary = trainer.run(
+            |_| JacoLearnEnv::new(scene, env_cfg),
+            target.min(s.transitions),
+            stop,
+            &mut |ev| match ev {
+                Event::Eval(r) => {
+                    if let Err(e) = writeln!(log, "{}", r.to_json_line()) {
+                        write_err = Some(e);
+                    }
+                    last_eval = format!(
+                        "eval {}: return {:.2}, success {:.0}%",
+                        r.eval_index,
+                        r.mean_return,
+                        r.success_rate * 100.0
+                    );
+                    if args.quiet {
+                        println!("seed {seed} {} transitions: {last_eval}", r.transitions);
+                    }
+                }
+                Event::Progress(p) => {
+                    let secs = started.elapsed().as_secs_f64().max(1e-9);
+                    pb.set_position(p.transitions);
+                    pb.set_message(format!(
+                        "| {:.0} tr/s {:.0} upd/s | {last_eval}",
+                        (p.transitions - start_transitions) as f64 / secs,
+                        (p.updates - start_updates) as f64 / secs
+                    ));
+                }
+            },
+        )?;
+        if let Some(e) = write_err {
+            return Err(e).context("cannot append to eval.jsonl");
+        }
+        log.flush()?;
+        trainer
+            .save(&ckpt)
+            .with_context(|| format!("cannot write checkpoint {}", ckpt.display()))?;
+        if summary.stopped {
+            pb.abandon();
+            return Ok(false);
+        }
+    }
+    pb.finish();
+    let out = dir.join("policy.dxpl");
+    let eval = export_checkpoint_trainer(&trainer, s, seed, &out, scene)?;
+    println!(
+        "seed {seed}: exported {} - runtime evaluation {}",
+        out.display(),
+        describe(&eval)
+    );
+    Ok(true)
+}
+
+fn describe(e: &PolicyEval) -> String {
+    format!(
+        "success {}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
+        e.successes,
+        e.episodes,
+        e.success_rate() * 100.0,
+        e.ci95.0 * 100.0,
+        e.ci95.1 * 100.0,
+        e.mean_return
+    )
+}
+
+/// Exports the trainer's actor, evaluates the file through the runtime, and writes the file with the
+/// measured success rate in its provenance, plus `final_eval.json`.
+fn export_checkpoint_trainer(
+    trainer: &Trainer,
+    s: &TrainSettings,
+    seed: u64,
+    out: &Path,
+    scene: &Scene,
+) -> anyhow::Result<PolicyEval> {
+    let (net, params) = trainer.actor();
+    let mut info = ExportInfo {
+        task: s.task.task(),
+        seed,
+        transitions: trainer.progress().transitions,
+        success_rate: None,
+        eval_episodes: 0,
+    };
+    let draft = export_actor(net, params, &info)?;
+    let settings = EvalSettings {
+        env: s.reward.env_config(s.task.task()),
+        episodes: s.final_eval_episodes,
+        seed: 1_000_000,
+        threads: s.eval_threads,
+        can_quantisation: true,
+    };
+    let eval = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
+    info.success_rate = Some(eval.success_rate() as f32);
+    info.eval_episodes = eval.episodes;
+    write_atomic(out, &export_actor(net, params, &info)?)?;
+    let json = serde_json::json!({
+        "policy": out.file_name().map(|n| n.to_string_lossy().to_string()),
+        "episodes": eval.episodes,
+        "successes": eval.successes,
+        "success_rate": eval.success_rate(),
+        "ci95": [eval.ci95.0, eval.ci95.1],
+        "mean_return": eval.mean_return,
+        "start_seed": settings.seed,
+        "transitions": info.transitions,
+    });
+    if let Some(dir) = out.parent() {
+        write_atomic(&dir.join("final_eval.json"), json.to_string().as_bytes())?;
+    }
+    Ok(eval)
+}
+
+/// `trainer export`: the latest checkpoint of a seed as a policy file.
+pub fn export_checkpoint(
+    dir: &Path,
+    s: &TrainSettings,
+    seed: u64,
+    out: &Path,
+) -> anyhow::Result<()> {
+    let ckpt = dir.join("checkpoint.bin");
+    let trainer =
+        Trainer::load(&ckpt).with_context(|| format!("cannot read {}", ckpt.display()))?;
+    let scene = load_scene()?;
+    let eval = export_checkpoint_trainer(&trainer, s, seed, out, &scene)?;
+    println!("runtime evaluation {}", describe(&eval));
+    Ok(())
+}
+
+/// `trainer eval`.
+pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
+    let bytes = std::fs::read(&args.policy)
+        .with_context(|| format!("cannot read {}", args.policy.display()))?;
+    let aligned = dex_runtime::testkit::aligned_copy(&bytes);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes())
+        .with_context(|| format!("{} is not a valid policy file", args.policy.display()))?;
+    let task = args
+        .task
+        .unwrap_or_else(|| TaskArg::from_policy(view.body().task));
+    let scene = load_scene()?;
+    let settings = EvalSettings {
+        env: config::RewardArg::TaskDefault.env_config(task.task()),
+        episodes: args.episodes,
+        seed: args.seed,
+        threads: args.threads,
+        can_quantisation: !args.no_can_quantisation,
+    };
+    let pb = bar(
+        u64::from(args.episodes),
+        false,
+        "eval [{elapsed_precise}] [{bar:30}] {pos}/{len} episodes",
+    );
+    let e = evaluate_policy_file(&bytes, &scene, &settings, &|| pb.inc(1))?;
+    pb.finish_and_clear();
+    println!(
+        "{} on {:?}, {} random starts from seed {}: {}",
+        args.policy.display(),
+        task,
+        args.episodes,
+        args.seed,
+        describe(&e)
+    );
+    Ok(())
+}
+
+/// `trainer plot`: learning curves of every seed in a run folder.
+pub fn plot_run(run: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut seeds = Vec::new();
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(run)
+        .with_context(|| format!("cannot read run folder {}", run.display()))?
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.join("eval.jsonl").exists())
+        .collect();
+    dirs.sort();
+    for d in &dirs {
+        let (records, bad) = read_eval_log(&d.join("eval.jsonl"))?;
+        if bad > 0 {
+            eprintln!("warning: {bad} malformed lines in {}", d.display());
+        }
+        if !records.is_empty() {
+            seeds.push(records);
+        }
+    }
+    if seeds.is_empty() {
+        bail!("no evaluations in {} (seed-*/eval.jsonl)", run.display());
+    }
+    let settings: Option<TrainSettings> = std::fs::read_to_string(run.join("settings.toml"))
+        .ok()
+        .and_then(|t| toml::from_str(&t).ok());
+    let (label, workers) = match &settings {
+        Some(s) => (
+            format!(
+                "{:?} {:?}, R={}, W={}",
+                s.task, s.reward, s.run.updates_per_step, s.run.workers
+            ),
+            s.run.workers,
+        ),
+        None => (run.display().to_string(), 1),
+    };
+    let conditions = [Condition { label, seeds }];
+    let mut files = Vec::new();
+    for (metric, name) in [
+        (Metric::MeanReturn, "return"),
+        (Metric::SuccessRate, "success"),
+    ] {
+        files.extend(plot(
+            &run.join(name),
+            &format!("{name} against transitions"),
+            &conditions,
+            metric,
+            XAxis::Total,
+        )?);
+        if workers > 1 {
+            files.extend(plot(
+                &run.join(format!("{name}_per_worker")),
+                &format!("{name} against transitions per worker"),
+                &conditions,
+                metric,
+                XAxis::PerWorker,
+            )?);
+        }
+    }
+    Ok(files)
+}

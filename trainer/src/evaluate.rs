@@ -1,0 +1,222 @@
+//! Success rate of an exported policy file, run through the `dex-runtime` evaluator: what is measured
+//! is exactly what a controller runs (optionally with the CAN bus's quantisation on both sides).
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use dex_policy::PolicyView;
+use dex_runtime::Mlp;
+use dex_runtime::can::messages::{quantise_action, quantise_observation};
+use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
+
+use crate::env::{EnvConfig, EnvError, JacoEnv, Scene};
+
+/// Widest layer `trainer eval` accepts.
+pub const EVAL_WIDTH: usize = 1024;
+
+/// Why an evaluation failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum EvalError {
+    /// The file is not a valid policy or does not fit the evaluator.
+    #[error("policy file: {0}")]
+    Format(#[from] dex_policy::FormatError),
+    /// The policy's layout is not the cell's.
+    #[error("policy does not match the Jaco cell: {0}")]
+    Layout(dex_policy::FormatError),
+    /// The runtime refused to evaluate an observation.
+    #[error("runtime evaluation: {0}")]
+    Runtime(#[from] dex_runtime::EvalError),
+    /// The simulation failed.
+    #[error("environment: {0}")]
+    Env(#[from] EnvError),
+    /// No episodes were asked for.
+    #[error("at least one episode is needed")]
+    NoEpisodes,
+}
+
+/// Result of evaluating a policy over several episodes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolicyEval {
+    /// Episodes run.
+    pub episodes: u32,
+    /// Episodes ending in success.
+    pub successes: u32,
+    /// Mean undiscounted return.
+    pub mean_return: f64,
+    /// 95% Wilson score interval of the success rate.
+    pub ci95: (f64, f64),
+}
+
+impl PolicyEval {
+    /// Fraction of successful episodes.
+    pub fn success_rate(&self) -> f64 {
+        f64::from(self.successes) / f64::from(self.episodes.max(1))
+    }
+}
+
+/// 95% Wilson score interval for `successes` out of `n` (z = 1.96).
+pub fn wilson_interval(successes: u32, n: u32) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 1.0);
+    }
+    let n = f64::from(n);
+    let p = f64::from(successes) / n;
+    let z = 1.96f64;
+    let denom = 1.0 + z * z / n;
+    let centre = (p + z * z / (2.0 * n)) / denom;
+    let half = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / denom;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+/// Seed of episode `index` of an evaluation seeded with `seed` (SplitMix64 of both), shared by
+/// `trainer eval` and `hil-sim run` so both see the same start states.
+pub fn episode_seed(seed: u64, index: u64) -> u64 {
+    let mut z = seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A controller's physical joint command turned into the environment's normalised action.
+pub fn physical_to_env_action(physical: &[f32; ACT_DIM]) -> [f32; ACT_DIM] {
+    core::array::from_fn(|i| physical[i] / ACTION_JOINTS[i].scale)
+}
+
+/// How an evaluation runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalSettings {
+    /// Environment (task, reward, episode length).
+    pub env: EnvConfig,
+    /// Episodes to run.
+    pub episodes: u32,
+    /// Seed of the start states (episode `i` starts from [`episode_seed`]`(seed, i)`).
+    pub seed: u64,
+    /// Worker threads.
+    pub threads: usize,
+    /// Quantise observations and actions exactly as the CAN bus does (the SIL loop's view).
+    pub can_quantisation: bool,
+}
+
+/// One episode through the runtime evaluator; returns (return, success).
+pub fn run_episode(
+    mlp: &mut Mlp<'_, EVAL_WIDTH>,
+    env: &mut JacoEnv,
+    seed: u64,
+    can_quantisation: bool,
+) -> Result<(f64, bool), EvalError> {
+    let mut obs = env.reset(seed)?;
+    let mut total = 0.0f64;
+    loop {
+        let input: [f32; OBS_DIM] = if can_quantisation {
+            core::array::from_fn(|i| quantise_observation(i, obs[i]))
+        } else {
+            obs
+        };
+        let mut physical = [0.0f32; ACT_DIM];
+        mlp.act(&input, &mut physical)?;
+        if can_quantisation {
+            physical = physical.map(quantise_action);
+        }
+        let out = env.step(&physical_to_env_action(&physical))?;
+        total += f64::from(out.reward);
+        obs = out.observation;
+        if out.done {
+            return Ok((total, out.success));
+        }
+    }
+}
+
+/// Evaluates a policy file on `settings.episodes` start states, calling `on_episode` after each.
+pub fn evaluate_policy_file(
+    file: &[u8],
+    scene: &Scene,
+    settings: &EvalSettings,
+    on_episode: &(dyn Fn() + Sync),
+) -> Result<PolicyEval, EvalError> {
+    if settings.episodes == 0 {
+        return Err(EvalError::NoEpisodes);
+    }
+    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let view = PolicyView::decode(aligned.as_bytes())?;
+    view.check_layout(
+        dex_runtime::interface::OBSERVATION_FIELDS
+            .iter()
+            .map(|f| (f.name, f.size)),
+        ACTION_JOINTS.iter().map(|j| j.name),
+    )
+    .map_err(EvalError::Layout)?;
+    let next = AtomicU32::new(0);
+    let threads = settings.threads.clamp(1, settings.episodes as usize);
+    let results: Vec<Result<Vec<(f64, bool)>, EvalError>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|_| {
+                s.spawn(|| {
+                    let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
+                    let mut env = JacoEnv::new(scene, settings.env);
+                    let mut out = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        if i >= settings.episodes {
+                            return Ok(out);
+                        }
+                        let seed = episode_seed(settings.seed, u64::from(i));
+                        out.push(run_episode(
+                            &mut mlp,
+                            &mut env,
+                            seed,
+                            settings.can_quantisation,
+                        )?);
+                        on_episode();
+                    }
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    });
+    let mut successes = 0u32;
+    let mut total = 0.0;
+    let mut n = 0u32;
+    for r in results {
+        for (ret, ok) in r? {
+            n += 1;
+            total += ret;
+            successes += u32::from(ok);
+        }
+    }
+    Ok(PolicyEval {
+        episodes: n,
+        successes,
+        mean_return: total / f64::from(n.max(1)),
+        ci95: wilson_interval(successes, n),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilson_interval_matches_known_values() {
+        // Reference values (statsmodels proportion_confint method="wilson"):
+        // 95/100 -> (0.8882, 0.9785); 0/10 -> (0, 0.2775); 10/10 -> (0.7225, 1).
+        let (lo, hi) = wilson_interval(95, 100);
+        assert!(
+            (lo - 0.8882).abs() < 1e-3 && (hi - 0.9785).abs() < 1e-3,
+            "{lo} {hi}"
+        );
+        let (lo, hi) = wilson_interval(0, 10);
+        assert!(lo == 0.0 && (hi - 0.2775).abs() < 1e-3);
+        let (lo, hi) = wilson_interval(10, 10);
+        assert!((lo - 0.7225).abs() < 1e-3 && hi == 1.0);
+    }
+
+    #[test]
+    fn episode_seeds_differ_and_repeat() {
+        assert_eq!(episode_seed(1, 5), episode_seed(1, 5));
+        assert_ne!(episode_seed(1, 5), episode_seed(1, 6));
+        assert_ne!(episode_seed(1, 5), episode_seed(2, 5));
+    }
+}

@@ -1,0 +1,142 @@
+//! Writing a trained actor as a `dex-policy` file, the format the controller runs.
+
+use dex_policy::{ActionJoint, Body, LayerSpec, ObsField, Provenance, encode_to_vec};
+use dex_runtime::interface::{ACTION_JOINTS, CONTROL_PERIOD_US, OBSERVATION_FIELDS};
+
+use crate::env::Task;
+use crate::learn::nets::{Activation, Mlp};
+
+/// Why an actor could not be exported.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ExportError {
+    /// The actor uses layer normalisation, which the runtime does not evaluate.
+    #[error(
+        "the actor has layer normalisation in layer {layer}; the runtime evaluates plain dense layers"
+    )]
+    LayerNorm {
+        /// Layer index.
+        layer: usize,
+    },
+    /// The actor's input or output width is not the cell's observation or action dimension.
+    #[error("actor is {inputs} -> {outputs}, the cell needs {obs} -> {act}")]
+    Shape {
+        /// Actor inputs.
+        inputs: usize,
+        /// Actor outputs.
+        outputs: usize,
+        /// Cell observation dimension.
+        obs: usize,
+        /// Cell action dimension.
+        act: usize,
+    },
+    /// The parameter vector does not fit the network.
+    #[error("actor parameters: {0}")]
+    Params(#[from] crate::learn::LearnError),
+    /// The policy-format encoder refused the policy.
+    #[error("policy file: {0}")]
+    Format(#[from] dex_policy::FormatError),
+    /// More layers or wider layers than the format can describe.
+    #[error("the actor has {0} layers or a layer wider than 65535; the format allows 8")]
+    TooLarge(usize),
+}
+
+/// What the exporter writes into the file's provenance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExportInfo {
+    /// Task the actor was trained for.
+    pub task: Task,
+    /// Seed of the training run.
+    pub seed: u64,
+    /// Transitions used.
+    pub transitions: u64,
+    /// Success rate of an evaluation, if one ran before export.
+    pub success_rate: Option<f32>,
+    /// Episodes behind `success_rate`.
+    pub eval_episodes: u32,
+}
+
+/// Observation clip of exported policies. The learner sees raw observations (mean 0, scale 1 in the
+/// file), so the clip only has to stay clear of every plausible value (largest: 30 rad/s).
+pub const EXPORT_OBS_CLIP: f32 = 100.0;
+
+fn task_code(task: Task) -> dex_policy::Task {
+    match task {
+        Task::Reach => dex_policy::Task::Reach,
+        Task::Grasp => dex_policy::Task::Grasp,
+        Task::StackInHand => dex_policy::Task::StackInHand,
+        Task::Stack => dex_policy::Task::Stack,
+    }
+}
+
+/// Encodes the actor `net` with parameters `params` as a policy file for the Jaco cell. The file's
+/// action layer maps the actor's tanh output in [-1, 1] to joint velocity commands exactly as the
+/// environment does (`scale` = the actuator's range).
+pub fn export_actor(net: &Mlp, params: &[f32], info: &ExportInfo) -> Result<Vec<u8>, ExportError> {
+    let obs_dim = dex_runtime::interface::OBS_DIM;
+    let act_dim = dex_runtime::interface::ACT_DIM;
+    if net.input_dim() != obs_dim || net.output_dim() != act_dim {
+        return Err(ExportError::Shape {
+            inputs: net.input_dim(),
+            outputs: net.output_dim(),
+            obs: obs_dim,
+            act: act_dim,
+        });
+    }
+    let layers = net.layers(params)?;
+    let mut body_layers = heapless::Vec::<LayerSpec, { dex_policy::MAX_LAYERS }>::new();
+    let mut values: Vec<f32> = Vec::with_capacity(params.len() + 2 * obs_dim);
+    values.extend(std::iter::repeat_n(0.0, obs_dim));
+    values.extend(std::iter::repeat_n(1.0, obs_dim));
+    for (i, l) in layers.iter().enumerate() {
+        if l.layer_norm.is_some() {
+            return Err(ExportError::LayerNorm { layer: i });
+        }
+        let outputs = u16::try_from(l.fan_out).map_err(|_| ExportError::TooLarge(layers.len()))?;
+        body_layers
+            .push(LayerSpec {
+                outputs,
+                activation: match l.activation {
+                    Activation::Relu => dex_policy::Activation::Relu,
+                    Activation::Tanh => dex_policy::Activation::Tanh,
+                    Activation::Linear => dex_policy::Activation::Linear,
+                },
+            })
+            .map_err(|_| ExportError::TooLarge(layers.len()))?;
+        // Both store weights input-major (row i: the weights leaving input i), then the biases.
+        values.extend_from_slice(l.weights);
+        values.extend_from_slice(l.bias);
+    }
+    let mut observation = heapless::Vec::new();
+    for f in OBSERVATION_FIELDS {
+        let _ = observation.push(ObsField {
+            name: f.name,
+            size: f.size as u16,
+        });
+    }
+    let mut action = heapless::Vec::new();
+    for j in ACTION_JOINTS {
+        let _ = action.push(ActionJoint {
+            name: j.name,
+            scale: j.scale,
+            min: j.min,
+            max: j.max,
+        });
+    }
+    let body = Body {
+        task: task_code(info.task),
+        observation,
+        obs_clip: EXPORT_OBS_CLIP,
+        action,
+        control_period_us: CONTROL_PERIOD_US,
+        layers: body_layers,
+        provenance: Provenance {
+            trainer_version: concat!("dex-trainer ", env!("CARGO_PKG_VERSION")),
+            seed: info.seed,
+            transitions: info.transitions,
+            success_rate: info.success_rate,
+            eval_episodes: info.eval_episodes,
+        },
+    };
+    Ok(encode_to_vec(&body, &values)?)
+}

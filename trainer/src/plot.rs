@@ -1,0 +1,245 @@
+//! Figures like the paper's: a metric against millions of transitions, the mean over seeds as a line
+//! and the min-max band over seeds as a shaded area, as PNG and SVG.
+
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+
+use crate::learn::EvalRecord;
+
+/// Font used for PNG text (Debian package `fonts-dejavu-core`).
+pub const FONT_PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+
+/// Why a plot could not be drawn.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlotError {
+    /// No evaluation records to plot.
+    #[error("no evaluation records to plot")]
+    Empty,
+    /// The PNG font is missing.
+    #[error("font {path} not found: install it (Debian: apt-get install fonts-dejavu-core)")]
+    Font {
+        /// Path tried.
+        path: String,
+    },
+    /// The plotting backend failed.
+    #[error("drawing {path}: {message}")]
+    Draw {
+        /// Output file.
+        path: PathBuf,
+        /// Backend message.
+        message: String,
+    },
+}
+
+/// What the y axis shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Metric {
+    /// Mean return of the noise-free evaluation episodes.
+    MeanReturn,
+    /// Success rate of the evaluation episodes.
+    SuccessRate,
+}
+
+/// What the x axis counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum XAxis {
+    /// Transitions of all workers together.
+    Total,
+    /// Transitions of one worker (total divided by the number of workers).
+    PerWorker,
+}
+
+/// One curve: a label and the evaluation records of each seed.
+#[derive(Debug, Clone)]
+pub struct Condition {
+    /// Legend label.
+    pub label: String,
+    /// Records per seed.
+    pub seeds: Vec<Vec<EvalRecord>>,
+}
+
+/// Mean, min and max over seeds at each evaluation index that every seed reached.
+pub fn aggregate(seeds: &[Vec<EvalRecord>], metric: Metric, x: XAxis) -> Vec<(f64, f64, f64, f64)> {
+    let n = seeds.iter().map(Vec::len).min().unwrap_or(0);
+    (0..n)
+        .map(|i| {
+            let xs: Vec<f64> = seeds
+                .iter()
+                .map(|s| {
+                    let r = &s[i];
+                    let workers = r.transitions_per_worker.len().max(1) as f64;
+                    match x {
+                        XAxis::Total => r.transitions as f64,
+                        XAxis::PerWorker => r.transitions as f64 / workers,
+                    }
+                })
+                .collect();
+            let ys: Vec<f64> = seeds
+                .iter()
+                .map(|s| match metric {
+                    Metric::MeanReturn => s[i].mean_return,
+                    Metric::SuccessRate => s[i].success_rate,
+                })
+                .collect();
+            let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+            let min = ys.iter().copied().fold(f64::INFINITY, f64::min);
+            let max = ys.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (mean(&xs) / 1e6, mean(&ys), min, max)
+        })
+        .collect()
+}
+
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    conditions: &[Condition],
+    metric: Metric,
+    x: XAxis,
+) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let series: Vec<Vec<(f64, f64, f64, f64)>> = conditions
+        .iter()
+        .map(|c| aggregate(&c.seeds, metric, x))
+        .collect();
+    let x_max = series.iter().flatten().map(|p| p.0).fold(1e-6, f64::max);
+    let (y_min, y_max) = series
+        .iter()
+        .flatten()
+        .fold((0.0f64, 0.0f64), |(lo, hi), p| (lo.min(p.2), hi.max(p.3)));
+    // Keep a readable range when every value is (nearly) the same.
+    let y_max = y_max.max(
+        y_min
+            + match metric {
+                Metric::SuccessRate => 1.0,
+                Metric::MeanReturn => 0.1,
+            },
+    );
+    let y_label = match metric {
+        Metric::MeanReturn => "mean episode return",
+        Metric::SuccessRate => "success rate",
+    };
+    let x_label = match x {
+        XAxis::Total => "transitions (millions, all workers)",
+        XAxis::PerWorker => "transitions (millions, per worker)",
+    };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(0.0..x_max * 1.02, y_min..y_max * 1.05)
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .x_label_formatter(&|v| format!("{v:.3}"))
+        .y_label_formatter(&|v| format!("{v:.2}"))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    for (i, (c, s)) in conditions.iter().zip(&series).enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        if s.len() > 1 {
+            let mut band: Vec<(f64, f64)> = s.iter().map(|p| (p.0, p.3)).collect();
+            band.extend(s.iter().rev().map(|p| (p.0, p.2)));
+            chart
+                .draw_series(std::iter::once(Polygon::new(
+                    band,
+                    colour.mix(0.2).filled(),
+                )))
+                .map_err(|e| e.to_string())?;
+        }
+        chart
+            .draw_series(LineSeries::new(
+                s.iter().map(|p| (p.0, p.1)),
+                colour.stroke_width(2),
+            ))
+            .map_err(|e| e.to_string())?
+            .label(format!("{} ({} seeds)", c.label, c.seeds.len()))
+            .legend(move |(lx, ly)| {
+                PathElement::new(vec![(lx, ly), (lx + 18, ly)], colour.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    root.present().map_err(|e| e.to_string())
+}
+
+fn register_font() -> Result<(), PlotError> {
+    let bytes = std::fs::read(FONT_PATH).map_err(|_| PlotError::Font {
+        path: FONT_PATH.to_string(),
+    })?;
+    let leaked: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+    plotters::style::register_font("sans-serif", FontStyle::Normal, leaked).map_err(|_| {
+        PlotError::Font {
+            path: FONT_PATH.to_string(),
+        }
+    })
+}
+
+/// Draws `stem.png` and `stem.svg` (1000 x 600) and returns both paths.
+pub fn plot(
+    stem: &Path,
+    title: &str,
+    conditions: &[Condition],
+    metric: Metric,
+    x: XAxis,
+) -> Result<[PathBuf; 2], PlotError> {
+    if conditions.iter().all(|c| c.seeds.iter().all(Vec::is_empty)) {
+        return Err(PlotError::Empty);
+    }
+    static FONT: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    FONT.get_or_init(|| register_font().map_err(|e| e.to_string()))
+        .as_ref()
+        .map_err(|_| PlotError::Font {
+            path: FONT_PATH.to_string(),
+        })?;
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    draw(
+        BitMapBackend::new(&png, (1000, 600)).into_drawing_area(),
+        title,
+        conditions,
+        metric,
+        x,
+    )
+    .map_err(|message| PlotError::Draw {
+        path: png.clone(),
+        message,
+    })?;
+    draw(
+        SVGBackend::new(&svg, (1000, 600)).into_drawing_area(),
+        title,
+        conditions,
+        metric,
+        x,
+    )
+    .map_err(|message| PlotError::Draw {
+        path: svg.clone(),
+        message,
+    })?;
+    Ok([png, svg])
+}
+
+/// Reads a JSON-lines evaluation log; malformed lines are skipped and counted.
+pub fn read_eval_log(path: &Path) -> std::io::Result<(Vec<EvalRecord>, usize)> {
+    let text = std::fs::read_to_string(path)?;
+    let mut records = Vec::new();
+    let mut bad = 0;
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        match serde_json::from_str::<EvalRecord>(line) {
+            Ok(r) => records.push(r),
+            Err(_) => bad += 1,
+        }
+    }
+    Ok((records, bad))
+}
