@@ -15,6 +15,13 @@ need python3 "install Python 3 (Debian: apt-get install python3 python3-venv)"
 rustup target add thumbv7em-none-eabihf >/dev/null
 cargo --version
 
+step "Debian packages (fonts for PNG plots)"
+if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
+  { apt-get install -y --no-install-recommends fonts-dejavu-core >/dev/null 2>&1 \
+    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends fonts-dejavu-core >/dev/null; }; } \
+    || { echo "error: cannot install fonts-dejavu-core (apt-get; needs root)" >&2; exit 1; }
+fi
+
 step "MuJoCo and Jaco assets (scripts/setup-mujoco.sh)"
 bash scripts/setup-mujoco.sh
 

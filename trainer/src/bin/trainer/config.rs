@@ -126,9 +126,16 @@ impl Default for TrainSettings {
     }
 }
 
-/// Overlays `overlay` onto `base` key by key (tables merge, other values replace).
+/// Overlays `overlay` onto `base` key by key (tables merge, other values replace). A table none of
+/// whose keys the base has replaces it whole: that is how an enum switches variant
+/// (`[run.ddpg.target.polyak]` over the default `copy`).
 fn merge(base: &mut toml::Value, overlay: toml::Value) {
     match (base, overlay) {
+        (toml::Value::Table(b), toml::Value::Table(o))
+            if !b.is_empty() && o.keys().all(|k| !b.contains_key(k)) =>
+        {
+            *b = o;
+        }
         (toml::Value::Table(b), toml::Value::Table(o)) => {
             for (k, v) in o {
                 match b.get_mut(&k) {
@@ -223,6 +230,13 @@ mod tests {
         assert_eq!(s.run.updates_per_step, 40);
         assert_eq!(s.run.ddpg.batch_size, 256);
         assert_eq!(s.run.ddpg.gamma, RunConfig::default().ddpg.gamma);
+        let polyak = dir.join("polyak.toml");
+        std::fs::write(&polyak, "[run.ddpg.target.polyak]\ntau = 0.01\n").unwrap();
+        let s = load(Some(&polyak)).unwrap();
+        assert_eq!(
+            s.run.ddpg.target,
+            dex_trainer::learn::TargetUpdate::Polyak { tau: 0.01 }
+        );
         let bad = dir.join("bad.toml");
         std::fs::write(&bad, "[run]\nupdates_per_stepp = 40\n").unwrap();
         let e = load(Some(&bad)).unwrap_err();
