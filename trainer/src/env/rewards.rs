@@ -123,17 +123,26 @@ pub enum Reward {
     SparseGrasp,
     /// Reach task: 1 if the pinch site is in the reach box, else 0.
     SparseReach,
+    /// Reach task, dense: 1 if the pinch site is in the reach box, else
+    /// `0.5 (1 - tanh²(W_REACH |s_B1 - s_P|))`. Not from the paper: the learner's fast CI task. The
+    /// broader scale ([`W_REACH`] = 4/m, r = 0.31 at 20 cm, 0.08 at 40 cm) gives a gradient from every
+    /// start height, and the gap between 0.5 and 1 pays for entering the box.
+    ReachShaping,
 }
+
+/// Scale of [`Reward::ReachShaping`]'s distance term, per metre.
+pub const W_REACH: f64 = 4.0;
 
 impl Reward {
     /// All reward functions, for command lines and sweeps.
-    pub const ALL: [Reward; 6] = [
+    pub const ALL: [Reward; 7] = [
         Reward::SparseStack,
         Reward::GraspShaping,
         Reward::ReachGraspShaping,
         Reward::FullComposite,
         Reward::SparseGrasp,
         Reward::SparseReach,
+        Reward::ReachShaping,
     ];
 
     /// The reward for `state`, whose predicates are `p`.
@@ -173,6 +182,14 @@ impl Reward {
             }
             Reward::SparseGrasp => f64::from(u8::from(p.grasp)),
             Reward::SparseReach => f64::from(u8::from(p.reach)),
+            Reward::ReachShaping => {
+                if p.reach {
+                    1.0
+                } else {
+                    let d = dist(&state.brick1_pos, &state.pinch);
+                    0.5 * (1.0 - (W_REACH * d).tanh().powi(2))
+                }
+            }
         }
     }
 }
@@ -303,6 +320,8 @@ mod tests {
                 FullComposite => [0.125 * f.r_s1(), 0.125, 0.25 + 0.25 * g.r_s2(), 1.0],
                 SparseGrasp => [0.0, 0.0, 1.0, 0.0],
                 SparseReach => [0.0, 1.0, 1.0, 1.0],
+                // 30 cm from brick 1: 0.5 (1 - tanh²(1.2)) = 0.5 (1 - 0.83365...^2).
+                ReachShaping => [0.5 * (1.0 - (1.2f64).tanh().powi(2)), 1.0, 1.0, 1.0],
             }
         };
         for r in Reward::ALL {

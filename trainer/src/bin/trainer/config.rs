@@ -62,6 +62,8 @@ pub enum RewardArg {
     SparseGrasp,
     /// 1 if the pinch site is in the reach box.
     SparseReach,
+    /// 1 in the reach box, else a broad distance term (the Reach task's dense reward).
+    ReachShaping,
 }
 
 impl RewardArg {
@@ -76,6 +78,7 @@ impl RewardArg {
             RewardArg::FullComposite => Reward::FullComposite,
             RewardArg::SparseGrasp => Reward::SparseGrasp,
             RewardArg::SparseReach => Reward::SparseReach,
+            RewardArg::ReachShaping => Reward::ReachShaping,
         };
         base.with_reward(reward)
     }
