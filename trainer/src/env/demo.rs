@@ -145,6 +145,8 @@ impl Demonstrator {
         // Pre-shape: fingers to PRESHAPE rad (open enough for the brick's narrow side) while approaching.
         let preshape = (PRESHAPE - finger_pos.iter().sum::<f64>() / 3.0).clamp(-1.0, 1.0) * 4.0;
         let preshape = preshape.clamp(-1.0, 1.0);
+        // Brick 1 counts as in the hand while its origin stays within 4 cm of the pinch site.
+        let in_hand = norm3(&sub(&b1, &pinch)) < 0.04;
         self.timer += 1;
         let mut speed = MAX_SPEED;
 
@@ -187,7 +189,7 @@ impl Demonstrator {
                 }
                 Phase::Lift => {
                     let t = [self.anchor[0], self.anchor[1], LIFT_HEIGHT];
-                    if self.timer > 12 && b1[2] < 0.01 {
+                    if self.timer > 12 && !in_hand {
                         // The grasp missed: try again.
                         self.enter(Phase::Approach, env);
                         continue;
@@ -199,8 +201,8 @@ impl Demonstrator {
                     break (t, self.anchor_yaw, 1.0);
                 }
                 Phase::Carry => {
-                    if b1[2] < 0.01 {
-                        // Dropped on the table: pick it up again.
+                    if !in_hand {
+                        // Dropped: pick it up again.
                         self.enter(Phase::Approach, env);
                         continue;
                     }
@@ -222,7 +224,7 @@ impl Demonstrator {
                 Phase::Lower => {
                     let xy = norm3(&[stack_site[0] - b1[0], stack_site[1] - b1[1], 0.0]);
                     let dz = b1[2] - stack_site[2];
-                    if (xy < 0.003 && dz < 0.004) || self.timer > 40 {
+                    if (xy < 0.003 && dz < 0.007) || self.timer > 40 {
                         self.enter(Phase::Release, env);
                         continue;
                     }
@@ -237,11 +239,12 @@ impl Demonstrator {
                         self.enter(Phase::Retreat, env);
                         continue;
                     }
-                    break (self.anchor, self.anchor_yaw, -1.0);
+                    // Open gently (to the pre-shape angle, at most 40% speed): a fast open flicks the brick.
+                    break (self.anchor, self.anchor_yaw, preshape.max(-0.4));
                 }
                 Phase::Retreat => {
                     let t = [self.anchor[0], self.anchor[1], self.anchor[2] + 0.08];
-                    break (t, self.anchor_yaw, -1.0);
+                    break (t, self.anchor_yaw, preshape.max(-0.4));
                 }
             }
         };

@@ -24,7 +24,7 @@ pub const START_XY_RANGE: f64 = 0.1;
 pub const MIN_BRICK_SPACING: f64 = 0.08;
 /// Range of the finger joints' start positions (radians; fully open is 0.15, closed ~1.35).
 pub const START_FINGER_RANGE: (f64, f64) = (0.15, 0.9);
-/// Height of brick 1's origin below the pinch site when held (StackInHand start, demonstrator grasp).
+/// Height of the pinch site above brick 1's origin at which the demonstrator closes the fingers.
 pub const GRASP_DEPTH: f64 = 0.012;
 /// Control steps the StackInHand start may spend picking brick 1 up (not part of the episode).
 pub const PICK_UP_STEPS: u32 = 120;

@@ -205,6 +205,15 @@ fn scene_ids(model: &MjModel) -> Result<SceneIds, EnvError> {
         joint_qpos[i] = qposadr[j] as usize;
         joint_dof[i] = dofadr[j] as usize;
     }
+    // The actuators must be in the interface's action order.
+    for (i, joint) in dex_runtime::interface::ACTION_JOINTS.iter().enumerate() {
+        if model.name_to_id(MjtObjBase::mjOBJ_ACTUATOR, joint.name) != Some(i) {
+            return Err(EnvError::MissingElement {
+                kind: "actuator (in ACTION_JOINTS order)",
+                name: joint.name,
+            });
+        }
+    }
     let brick1_joint = lookup(model, MjtObjBase::mjOBJ_JOINT, "joint", "brick1")?;
     let brick2_joint = lookup(model, MjtObjBase::mjOBJ_JOINT, "joint", "brick2")?;
     Ok(SceneIds {
