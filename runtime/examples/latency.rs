@@ -10,7 +10,7 @@ use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
 use dex_runtime::interface::ACT_DIM;
 use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
-use dex_runtime::{Controller, ControllerConfig, MockClock, Mlp};
+use dex_runtime::{Controller, ControllerConfig, Mlp, MockClock};
 
 fn report(name: &str, mut ns: Vec<u64>) {
     ns.sort_unstable();
