@@ -8,6 +8,8 @@
 //!   the same work as the figures in FACTS.md section 6;
 //! - `trainer`: [`Trainer::run`] with one worker, R = 40 updates per step on a free environment, so it
 //!   adds replay sampling, the shared-parameter locking and copies, and acting.
+//!
+//! Then total updates/s of ADPG-R with W = 1 and W = 2 workers (gemm, batch 64), same environment.
 
 use dex_trainer::learn::adam::{AdamLocal, AdamShared, adam_step};
 use dex_trainer::learn::ddpg::{UpdateBuffers, actor_gradient, critic_gradient};
@@ -102,10 +104,11 @@ fn kernel_rate(engine: Engine, batch: usize, seconds: f64) -> f64 {
     n as f64 / start.elapsed().as_secs_f64()
 }
 
-fn trainer_rate(engine: Engine, batch: usize, seconds: f64) -> f64 {
+fn trainer_rate(engine: Engine, batch: usize, seconds: f64, workers: usize) -> f64 {
     let cfg = RunConfig {
         ddpg: ddpg(engine, batch),
         updates_per_step: 40,
+        workers,
         learning_starts: 300,
         replay: ReplayConfig {
             capacity: 100_000,
@@ -133,7 +136,7 @@ fn trainer_rate(engine: Engine, batch: usize, seconds: f64) -> f64 {
     let u0 = t.progress().updates;
     let mut until = t.progress().transitions;
     while start.elapsed().as_secs_f64() < seconds {
-        until += 10;
+        until += 10 * workers as u64;
         if t.run(env, until, &stop, &mut |_| {}).is_err() {
             return 0.0;
         }
@@ -155,12 +158,20 @@ fn main() {
         for (ei, &e) in engines.iter().enumerate() {
             for (bi, &b) in batches.iter().enumerate() {
                 let k = kernel_rate(e, b, seconds);
-                let t = trainer_rate(e, b, seconds);
+                let t = trainer_rate(e, b, seconds, 1);
                 let slot = &mut best[ei * batches.len() + bi];
                 slot[0] = slot[0].max(k);
                 slot[1] = slot[1].max(t);
                 eprintln!("round {round} {e:?} batch {b}: kernel {k:.0}/s trainer {t:.0}/s");
             }
+        }
+    }
+    let mut w2 = [0.0f64; 2];
+    for round in 0..rounds {
+        for (i, w) in [1usize, 2].into_iter().enumerate() {
+            let r = trainer_rate(Engine::Gemm, 64, seconds, w);
+            w2[i] = w2[i].max(r);
+            eprintln!("round {round} Gemm batch 64 trainer W={w}: {r:.0}/s");
         }
     }
     println!("| engine | batch | kernel updates/s | trainer updates/s (R=40, W=1) |");
@@ -171,4 +182,10 @@ fn main() {
             println!("| {e:?} | {b} | {k:.0} | {t:.0} |");
         }
     }
+    println!(
+        "ADPG-R, Gemm, batch 64, R=40, free env: W=1 {:.0} updates/s, W=2 {:.0} updates/s ({:.2}x)",
+        w2[0],
+        w2[1],
+        w2[1] / w2[0].max(1e-9)
+    );
 }

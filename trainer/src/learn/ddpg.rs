@@ -60,6 +60,7 @@ impl TargetUpdate {
 /// Shapes of the two networks and the update's hyper-parameters (learning rates are in the trainer's
 /// Adam configs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct DdpgConfig {
     /// Hidden widths of the actor (`obs -> hidden... -> act`, ReLU, tanh output).
     pub actor_hidden: Vec<usize>,

@@ -39,6 +39,7 @@ use std::time::{Duration, Instant};
 
 /// Replay settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct ReplayConfig {
     /// Total capacity in transitions; with per-worker buffers each holds `capacity / workers`.
     pub capacity: usize,
@@ -57,6 +58,7 @@ impl Default for ReplayConfig {
 
 /// Gaussian exploration noise added to the actor's output (then clipped to `[-1, 1]`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct NoiseConfig {
     /// Standard deviation per action component.
     pub std: f32,
@@ -70,6 +72,7 @@ impl Default for NoiseConfig {
 
 /// The evaluation protocol.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct EvalConfig {
     /// Evaluate after every this many training episodes (all workers together); 0 disables evaluation.
     pub every_episodes: u64,
@@ -91,6 +94,7 @@ impl Default for EvalConfig {
 
 /// Everything a run needs besides the environment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct RunConfig {
     /// Networks and the DDPG update.
     pub ddpg: DdpgConfig,
@@ -395,9 +399,10 @@ impl Trainer {
     }
 
     /// Trains until at least `until_transitions` transitions (all workers, cumulative) have been
-    /// collected and each worker has finished its episode, or until `stop` is set (checked every step;
-    /// a worker's unfinished episode is then dropped). `make_env(worker)` builds each worker's
-    /// environment on its own thread. Events arrive on the calling thread.
+    /// collected and each worker has finished its episode (returns at once if the count is already
+    /// reached), or until `stop` is set (checked every step; a worker's unfinished episode is then
+    /// dropped). `make_env(worker)` builds each worker's environment on its own thread. Events arrive
+    /// on the calling thread.
     pub fn run<E, F>(
         &mut self,
         make_env: F,
@@ -418,6 +423,14 @@ impl Trainer {
             counters,
         } = self;
         let per: Vec<u64> = workers.iter().map(|w| w.transitions).collect();
+        if per.iter().sum::<u64>() >= until_transitions {
+            // Already done (e.g. resuming a finished run): collect nothing.
+            return Ok(RunSummary {
+                records: Vec::new(),
+                progress: self.progress(),
+                stopped: false,
+            });
+        }
         let ctx = Ctx {
             cfg,
             nets,
