@@ -37,10 +37,6 @@ fn env(_: usize) -> PointMass {
 }
 
 #[test]
-#[cfg_attr(
-    debug_assertions,
-    ignore = "learning runs take minutes unoptimised: use --release"
-)]
 fn ddpg_learns_point_mass() {
     let cfg = small_config(1);
     let mut t = Trainer::new(cfg, 6, 2).expect("trainer");
@@ -126,10 +122,6 @@ fn one_worker_is_deterministic_and_resumes_bit_identically() {
 }
 
 #[test]
-#[cfg_attr(
-    debug_assertions,
-    ignore = "learning runs take minutes unoptimised: use --release"
-)]
 fn two_workers_learn_with_shared_and_per_worker_replay() {
     for shared in [true, false] {
         let mut cfg = small_config(3);
