@@ -7,23 +7,29 @@ from conftest import (
 
 
 def heartbeats(msgs):
-    return [(t, DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False)) for t, m in msgs if m.arbitration_id == HEARTBEAT_ID]
+    """(bus timestamp, decoded heartbeat) pairs."""
+    return [(m.timestamp, DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False)) for t, m in msgs if m.arbitration_id == HEARTBEAT_ID]
 
 
 def test_preoperational_heartbeat_period_and_safe_actions(sim):
     bus = sim().bus()
     msgs = collect(bus, 1.3)
     hb = heartbeats(msgs)
+    # The node may boot while this client subscribes: then the boot-up heartbeat (0x00) and the
+    # pre-operational one it is followed by at once come first.
+    if hb and hb[0][1]["nmt_state"] == 0x00:
+        assert hb[1][1]["nmt_state"] == PREOP and hb[1][0] - hb[0][0] < 0.01
+        hb = hb[2:]
     assert len(hb) >= 2
-    assert all(d["nmt_state"] == PREOP and d["state"] == 1 and d["fault_code"] == 0 for _, d in hb)
-    # Heartbeat every 10 cycles = 500 ms.
+    assert all(d["nmt_state"] == PREOP and d["state"] == 1 and d["fault_code"] == 0 for _, d in hb), hb
+    # Heartbeat every 10 cycles = 500 ms (bus timestamps, as a bus analyser sees them).
     gaps = [b[0] - a[0] for a, b in zip(hb, hb[1:])]
-    assert all(0.42 < g < 0.58 for g in gaps), gaps
+    assert all(0.45 < g < 0.55 for g in gaps), gaps
     counters = [d["counter"] for _, d in hb]
     assert all((b - a) % 256 == 1 for a, b in zip(counters, counters[1:]))
     # Pre-operational: a zero-velocity action every cycle (about 26 in 1.3 s).
     actions = decode_action([m for _, m in msgs])
-    assert sum(m.arbitration_id == 0x280 for _, m in msgs) >= 20
+    assert sum(m.arbitration_id == 0x280 for _, m in msgs) >= 18
     assert all(v == 0.0 for a in actions.values() for v in a.values())
 
 
