@@ -13,7 +13,8 @@
 //!   activation outside operational).
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
 //!
-//! Not here: real SocketCAN hardware (no `AF_CAN` on the development machines).
+//! With feature `socketcan`, [`port`] runs the controller node on a Linux SocketCAN interface
+//! (untested here: the development machines have no `AF_CAN`).
 #![deny(missing_docs)]
 
 pub mod bench;
@@ -22,4 +23,6 @@ pub mod client;
 pub mod flash;
 pub mod node;
 pub mod plant;
+#[cfg(feature = "socketcan")]
+pub mod port;
 pub mod protocol;

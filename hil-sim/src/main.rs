@@ -102,6 +102,15 @@ enum Command {
         #[arg(long)]
         policy: Option<PathBuf>,
     },
+    /// Run the controller node alone on a SocketCAN interface (feature `socketcan`), real time.
+    Node {
+        /// Interface name, e.g. can0.
+        #[arg(long)]
+        socketcan: String,
+        /// Policy file.
+        #[arg(long)]
+        policy: Option<PathBuf>,
+    },
     /// Write a random-weight policy file on the cell's layout (or a mismatched one) for tests.
     MakePolicy {
         /// Output file.
@@ -145,6 +154,7 @@ fn main() -> Result<()> {
             realtime,
             policy,
         } => bench_command(cycles, realtime, policy),
+        Command::Node { socketcan, policy } => node_command(&socketcan, policy),
         Command::MakePolicy {
             out,
             hidden,
@@ -284,6 +294,33 @@ fn run_command(
     println!("bus: {:?}", bus.stats());
     bus.shutdown();
     Ok(())
+}
+
+#[cfg(feature = "socketcan")]
+fn node_command(iface: &str, policy: Option<PathBuf>) -> Result<()> {
+    let bytes = match &policy {
+        Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
+        None => None,
+    };
+    let mut port = dex_hil_sim::port::SocketCanPort::open(iface)?;
+    let stop = AtomicBool::new(false);
+    let report = dex_hil_sim::node::run_controller_node(
+        &mut port,
+        bytes.as_deref(),
+        dex_runtime::ControllerConfig::default(),
+        TimeMode::RealTime,
+        &stop,
+        None,
+    )?;
+    eprintln!("controller node: {:?}", report.diagnostics);
+    Ok(())
+}
+
+#[cfg(not(feature = "socketcan"))]
+fn node_command(_iface: &str, _policy: Option<PathBuf>) -> Result<()> {
+    bail!(
+        "built without the `socketcan` feature: `cargo build -p dex-hil-sim --features socketcan`"
+    )
 }
 
 fn make_plant(kind: PlantKind, task: &str, steps: u32) -> Result<Box<dyn Plant>> {

@@ -95,7 +95,7 @@ pub fn status_line<const W: usize>(c: &Controller<'_, W>, load: &str) -> String 
     )
 }
 
-fn send(port: &mut BusClient, out: &Outbox) -> Result<(), ClientError> {
+fn send(port: &mut impl NodePort, out: &Outbox) -> Result<(), ClientError> {
     for f in out {
         port.queue(f);
     }
@@ -105,7 +105,7 @@ fn send(port: &mut BusClient, out: &Outbox) -> Result<(), ClientError> {
 /// Runs the controller node until `stop` is set or the bus goes away. `policy` is a policy file;
 /// a refused file leaves the controller without policy (it stays pre-operational), as on a device.
 pub fn run_controller_node(
-    port: &mut BusClient,
+    port: &mut impl NodePort,
     policy: Option<&[u8]>,
     cfg: ControllerConfig,
     mode: TimeMode,
@@ -188,7 +188,7 @@ fn dispatch(
 }
 
 fn real_time_loop(
-    port: &mut BusClient,
+    port: &mut impl NodePort,
     controller: &mut Controller<'static, NODE_WIDTH>,
     flash: &mut FlashServer,
     period_us: u32,
@@ -222,7 +222,7 @@ fn real_time_loop(
 }
 
 fn lockstep_loop(
-    port: &mut BusClient,
+    port: &mut impl NodePort,
     controller: &mut Controller<'static, NODE_WIDTH>,
     flash: &mut FlashServer,
     stop: &AtomicBool,
@@ -244,6 +244,31 @@ fn lockstep_loop(
         publish(controller);
     }
     Ok(())
+}
+
+/// What the controller node needs from its CAN interface: the virtual bus ([`BusClient`]) or, with
+/// the `socketcan` feature, a Linux SocketCAN interface ([`crate::port::SocketCanPort`]).
+pub trait NodePort {
+    /// Queues a frame for transmission.
+    fn queue(&mut self, frame: &CanFrame);
+    /// Transmits everything queued.
+    fn flush(&mut self) -> Result<(), ClientError>;
+    /// The next frame or error frame, waiting at most `timeout`.
+    fn receive_timeout(&mut self, timeout: Duration) -> Result<Option<Received>, ClientError>;
+}
+
+impl NodePort for BusClient {
+    fn queue(&mut self, frame: &CanFrame) {
+        BusClient::queue(self, frame);
+    }
+
+    fn flush(&mut self) -> Result<(), ClientError> {
+        BusClient::flush(self)
+    }
+
+    fn receive_timeout(&mut self, timeout: Duration) -> Result<Option<Received>, ClientError> {
+        BusClient::receive_timeout(self, timeout)
+    }
 }
 
 /// Connects a controller node to the bus at `addr` and runs it on a new thread.
