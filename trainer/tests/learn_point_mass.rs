@@ -150,9 +150,15 @@ fn stop_flag_ends_the_run_and_bad_configs_are_refused() {
     let stop = AtomicBool::new(false);
     let mut t = Trainer::new(small_config(1), 6, 2).expect("trainer");
     let first = t.run(env, 60, &stop, &mut quiet).expect("run");
-    assert_eq!(first.progress.transitions, 75, "runs to the end of the episode");
+    assert_eq!(
+        first.progress.transitions, 75,
+        "runs to the end of the episode"
+    );
     let again = t.run(env, 60, &stop, &mut quiet).expect("run");
-    assert_eq!(again.progress.transitions, 75, "a reached budget collects nothing");
+    assert_eq!(
+        again.progress.transitions, 75,
+        "a reached budget collects nothing"
+    );
     let mut t = Trainer::new(small_config(1), 5, 2).expect("trainer");
     assert!(t.run(env, 100, &stop, &mut quiet).is_err());
 }

@@ -5,7 +5,7 @@
 //!   ([`kernel`]; the engine choice is measured in docs/benchmarks.md).
 //! - [`adam`]: Adam with per-worker first moments and one shared second moment.
 //! - [`replay`]: uniform ring-buffer replay. [`ddpg`]: the DDPG gradients and target networks.
-//! - [`env`]: the [`Env`] trait the learner drives, and a toy [`PointMass`] task for tests.
+//! - [`env`](mod@env): the [`Env`] trait the learner drives, and a toy [`PointMass`] task for tests.
 //! - [`trainer`]: [`Trainer`] runs W worker threads (W = 1 is DPG-R) with R updates per environment step,
 //!   evaluates on the paper's schedule and streams [`EvalRecord`]s; [`checkpoint`] saves and restores it.
 //!
