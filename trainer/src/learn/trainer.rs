@@ -2,20 +2,22 @@
 //! sharing the actor, the critic, their targets and Adam's second moment.
 //!
 //! # Sharing design
-//! The shared parameters sit in one `Mutex<SharedState>`. A worker keeps a local copy of every network
-//! and, per update:
+//! Each network's shared half (parameters, target, Adam second moment, version counters) sits in its own
+//! mutex, one for the actor and one for the critic; the update count is an atomic. A worker keeps a local
+//! copy of every network and, per update:
 //! 1. samples a mini-batch (from its own replay, or from the shared one under its own lock);
-//! 2. under the lock, refreshes whichever local copies are stale (version counters avoid needless
-//!    copies; with one worker nothing is copied here);
-//! 3. computes the critic gradient without the lock;
-//! 4. under the lock, applies Adam (its own first moment, the shared second moment) to the shared critic
-//!    and copies the result back;
-//! 5. computes the actor gradient through the updated critic without the lock;
-//! 6. under the lock, applies Adam to the shared actor, counts the update, updates the targets when due,
-//!    and copies the results back.
+//! 2. under each network's lock, refreshes whichever local copies are stale (version counters avoid
+//!    needless copies; with one worker nothing is copied here);
+//! 3. computes the critic gradient without a lock;
+//! 4. under the critic's lock, applies Adam (its own first moment, the shared second moment) to the
+//!    shared critic and copies the result back;
+//! 5. computes the actor gradient through the updated critic without a lock;
+//! 6. under the actor's lock, applies Adam to the shared actor, counts the update, moves the actor's
+//!    target when due and copies the actor back; then under the critic's lock moves the critic's target.
 //!
 //! The expensive part (the gradients) runs in parallel; the locked parts are an Adam step and memcpy
-//! (about a tenth of an update at batch 64 for 256-wide networks). Gradients are therefore computed on
+//! (about a tenth of an update at batch 64 for 256-wide networks), and one worker's actor step can
+//! overlap another's critic step. Gradients are therefore computed on
 //! parameters at most a few updates old, which is the asynchrony of the paper. With W = 1 the
 //! sequence is exactly sequential DDPG and a fixed seed gives bit-identical results.
 //!
@@ -265,9 +267,6 @@ pub(crate) struct SharedState {
     pub(crate) actor_adam: AdamShared,
     pub(crate) critic_adam: AdamShared,
     pub(crate) updates: u64,
-    pub(crate) actor_version: u64,
-    pub(crate) critic_version: u64,
-    pub(crate) target_version: u64,
     pub(crate) train_return_sum: f64,
     pub(crate) train_return_n: u64,
 }
@@ -431,14 +430,29 @@ impl Trainer {
                 stopped: false,
             });
         }
+        let s = std::mem::take(shared);
         let ctx = Ctx {
             cfg,
             nets,
-            shared: Mutex::new(std::mem::take(shared)),
+            actor: Mutex::new(NetShared {
+                params: s.actor,
+                target: s.target_actor,
+                adam: s.actor_adam,
+                version: 0,
+                target_version: 0,
+            }),
+            critic: Mutex::new(NetShared {
+                params: s.critic,
+                target: s.target_critic,
+                adam: s.critic_adam,
+                version: 0,
+                target_version: 0,
+            }),
+            returns: Mutex::new((s.train_return_sum, s.train_return_n)),
             replay: shared_replay.take().map(Mutex::new),
             transitions: AtomicU64::new(per.iter().sum()),
             per_worker: per.iter().map(|&t| AtomicU64::new(t)).collect(),
-            updates: AtomicU64::new(0),
+            updates: AtomicU64::new(s.updates),
             episodes: AtomicU64::new(counters.episodes),
             evals: AtomicU64::new(counters.evals),
             stop,
@@ -447,8 +461,6 @@ impl Trainer {
             start: Instant::now(),
             base_wall: counters.wall_s,
         };
-        ctx.updates
-            .store(lock(&ctx.shared)?.updates, Ordering::Relaxed);
         let mut records = Vec::new();
         let (tx, rx) = mpsc::channel::<EvalRecord>();
         let results: Vec<Result<(), LearnError>> = std::thread::scope(|s| {
@@ -494,10 +506,20 @@ impl Trainer {
         counters.episodes = ctx.episodes.load(Ordering::Relaxed);
         counters.evals = ctx.evals.load(Ordering::Relaxed);
         counters.wall_s = progress.wall_s;
-        *shared = ctx
-            .shared
-            .into_inner()
-            .map_err(|_| LearnError::Worker("shared state lock poisoned"))?;
+        let a = ctx.actor.into_inner().map_err(poisoned)?;
+        let c = ctx.critic.into_inner().map_err(poisoned)?;
+        let (train_return_sum, train_return_n) = ctx.returns.into_inner().map_err(poisoned)?;
+        *shared = SharedState {
+            actor: a.params,
+            critic: c.params,
+            target_actor: a.target,
+            target_critic: c.target,
+            actor_adam: a.adam,
+            critic_adam: c.adam,
+            updates: ctx.updates.load(Ordering::Relaxed),
+            train_return_sum,
+            train_return_n,
+        };
         *shared_replay = match ctx.replay {
             Some(m) => Some(
                 m.into_inner()
@@ -519,7 +541,9 @@ impl Trainer {
 struct Ctx<'a> {
     cfg: &'a RunConfig,
     nets: &'a Networks,
-    shared: Mutex<SharedState>,
+    actor: Mutex<NetShared>,
+    critic: Mutex<NetShared>,
+    returns: Mutex<(f64, u64)>,
     replay: Option<Mutex<Replay>>,
     transitions: AtomicU64,
     per_worker: Vec<AtomicU64>,
@@ -557,9 +581,22 @@ impl Ctx<'_> {
     }
 }
 
+fn poisoned<T>(_: std::sync::PoisonError<T>) -> LearnError {
+    LearnError::Worker("shared state lock poisoned")
+}
+
 fn lock<T>(m: &Mutex<T>) -> Result<MutexGuard<'_, T>, LearnError> {
     m.lock()
         .map_err(|_| LearnError::Worker("a lock was poisoned by a panicking worker"))
+}
+
+/// One network's shared half during a run.
+struct NetShared {
+    params: Vec<f32>,
+    target: Vec<f32>,
+    adam: AdamShared,
+    version: u64,
+    target_version: u64,
 }
 
 /// A worker's local copies of the networks and its buffers.
@@ -568,7 +605,8 @@ struct Local {
     critic: Vec<f32>,
     target_actor: Vec<f32>,
     target_critic: Vec<f32>,
-    versions: [u64; 3],
+    /// Versions of the local actor, critic, target actor, target critic.
+    versions: [u64; 4],
     bufs: UpdateBuffers,
     act_scratch: MlpScratch,
 }
@@ -591,13 +629,14 @@ fn worker_loop<E: Env>(
         });
     }
     let mut local = {
-        let sh = lock(&ctx.shared)?;
+        let a = lock(&ctx.actor)?;
+        let c = lock(&ctx.critic)?;
         Local {
-            actor: sh.actor.clone(),
-            critic: sh.critic.clone(),
-            target_actor: sh.target_actor.clone(),
-            target_critic: sh.target_critic.clone(),
-            versions: [sh.actor_version, sh.critic_version, sh.target_version],
+            actor: a.params.clone(),
+            critic: c.params.clone(),
+            target_actor: a.target.clone(),
+            target_critic: c.target.clone(),
+            versions: [a.version, c.version, a.target_version, c.target_version],
             bufs: UpdateBuffers::new(nets, cfg.ddpg.batch_size),
             act_scratch: nets.actor.scratch(1),
         }
@@ -648,9 +687,9 @@ fn worker_loop<E: Env>(
         if done {
             let n = ctx.episodes.fetch_add(1, Ordering::Relaxed) + 1;
             {
-                let mut sh = lock(&ctx.shared)?;
-                sh.train_return_sum += ep_return;
-                sh.train_return_n += 1;
+                let mut r = lock(&ctx.returns)?;
+                r.0 += ep_return;
+                r.1 += 1;
             }
             let every = cfg.eval.every_episodes;
             if every > 0 && n.is_multiple_of(every) {
@@ -665,10 +704,9 @@ fn worker_loop<E: Env>(
                     &mut eval_scratch,
                 )?;
                 let train_return = {
-                    let mut sh = lock(&ctx.shared)?;
-                    let m = sh.train_return_sum / sh.train_return_n.max(1) as f64;
-                    sh.train_return_sum = 0.0;
-                    sh.train_return_n = 0;
+                    let mut r = lock(&ctx.returns)?;
+                    let m = r.0 / r.1.max(1) as f64;
+                    *r = (0.0, 0);
                     m
                 };
                 ctx.evals.fetch_max(index, Ordering::Relaxed);
@@ -708,19 +746,25 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         (None, None) => return Err(LearnError::Worker("no replay buffer")),
     }
     {
-        let sh = lock(&ctx.shared)?;
-        if local.versions[0] != sh.actor_version {
-            local.actor.copy_from_slice(&sh.actor);
-            local.versions[0] = sh.actor_version;
+        let a = lock(&ctx.actor)?;
+        if local.versions[0] != a.version {
+            local.actor.copy_from_slice(&a.params);
+            local.versions[0] = a.version;
         }
-        if local.versions[1] != sh.critic_version {
-            local.critic.copy_from_slice(&sh.critic);
-            local.versions[1] = sh.critic_version;
+        if local.versions[2] != a.target_version {
+            local.target_actor.copy_from_slice(&a.target);
+            local.versions[2] = a.target_version;
         }
-        if local.versions[2] != sh.target_version {
-            local.target_actor.copy_from_slice(&sh.target_actor);
-            local.target_critic.copy_from_slice(&sh.target_critic);
-            local.versions[2] = sh.target_version;
+    }
+    {
+        let c = lock(&ctx.critic)?;
+        if local.versions[1] != c.version {
+            local.critic.copy_from_slice(&c.params);
+            local.versions[1] = c.version;
+        }
+        if local.versions[3] != c.target_version {
+            local.target_critic.copy_from_slice(&c.target);
+            local.versions[3] = c.target_version;
         }
     }
     critic_gradient(
@@ -732,42 +776,46 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         &mut local.bufs,
     )?;
     {
-        let mut guard = lock(&ctx.shared)?;
-        let sh = &mut *guard;
+        let mut guard = lock(&ctx.critic)?;
+        let c = &mut *guard;
         adam_step(
             &cfg.critic_adam,
-            &mut sh.critic,
+            &mut c.params,
             &local.bufs.critic_grads,
             &mut ws.critic_m,
-            &mut sh.critic_adam,
+            &mut c.adam,
         );
-        sh.critic_version += 1;
-        local.critic.copy_from_slice(&sh.critic);
-        local.versions[1] = sh.critic_version;
+        c.version += 1;
+        local.critic.copy_from_slice(&c.params);
+        local.versions[1] = c.version;
     }
     actor_gradient(nets, &local.actor, &local.critic, &mut local.bufs)?;
-    {
-        let mut guard = lock(&ctx.shared)?;
-        let sh = &mut *guard;
+    let t = cfg.ddpg.target;
+    let u = {
+        let mut guard = lock(&ctx.actor)?;
+        let a = &mut *guard;
         adam_step(
             &cfg.actor_adam,
-            &mut sh.actor,
+            &mut a.params,
             &local.bufs.actor_grads,
             &mut ws.actor_m,
-            &mut sh.actor_adam,
+            &mut a.adam,
         );
-        sh.actor_version += 1;
-        sh.updates += 1;
-        let u = sh.updates;
-        let t = cfg.ddpg.target;
-        let changed_a = t.apply(u, &sh.actor, &mut sh.target_actor);
-        let changed_c = t.apply(u, &sh.critic, &mut sh.target_critic);
-        if changed_a || changed_c {
-            sh.target_version += 1;
+        a.version += 1;
+        let u = ctx.updates.fetch_add(1, Ordering::Relaxed) + 1;
+        if t.apply(u, &a.params, &mut a.target) {
+            a.target_version += 1;
         }
-        local.actor.copy_from_slice(&sh.actor);
-        local.versions[0] = sh.actor_version;
-        ctx.updates.store(u, Ordering::Relaxed);
+        local.actor.copy_from_slice(&a.params);
+        local.versions[0] = a.version;
+        u
+    };
+    {
+        let mut guard = lock(&ctx.critic)?;
+        let c = &mut *guard;
+        if t.apply(u, &c.params, &mut c.target) {
+            c.target_version += 1;
+        }
     }
     Ok(())
 }
