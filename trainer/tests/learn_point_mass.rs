@@ -162,3 +162,41 @@ fn stop_flag_ends_the_run_and_bad_configs_are_refused() {
     let mut t = Trainer::new(small_config(1), 5, 2).expect("trainer");
     assert!(t.run(env, 100, &stop, &mut quiet).is_err());
 }
+
+#[test]
+fn observation_normalisation_learns_folds_and_resumes() {
+    let mut cfg = small_config(5);
+    cfg.obs_norm.enabled = true;
+    let stop = AtomicBool::new(false);
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    let s = t.run(env, 6_000, &stop, &mut quiet).expect("run");
+    let best = s.records.iter().map(|r| r.success_rate).fold(0.0, f64::max);
+    assert!(best >= 0.9, "best success with normalisation {best}");
+
+    // The folded policy on raw observations acts like the trainer (which normalises first).
+    let n = t.obs_normalizer().expect("normalisation is on");
+    assert!(n.inv_std.iter().all(|s| s.is_finite() && *s > 0.0));
+    let (actor, _) = t.actor();
+    let folded = t.policy_params().expect("fold");
+    let mut scratch = actor.scratch(1);
+    let obs = [0.3f32, -0.2, 0.5, 0.1, 0.2, 0.3];
+    let exported = actor
+        .forward(&folded, &obs, 1, &mut scratch)
+        .expect("forward")
+        .to_vec();
+    let mut direct = [0.0f32; 2];
+    t.act(&obs, &mut direct).expect("act");
+    for (a, b) in exported.iter().zip(&direct) {
+        assert!((a - b).abs() < 1e-4, "{a} vs {b}");
+    }
+
+    // Chunked run with a checkpoint in between equals one run, statistics included.
+    let mut one = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    one.run(env, 1_200, &stop, &mut quiet).expect("run");
+    let mut two = Trainer::new(cfg, 6, 2).expect("trainer");
+    two.run(env, 600, &stop, &mut quiet).expect("run");
+    let mut two = Trainer::from_checkpoint_bytes(&two.to_checkpoint_bytes()).expect("restore");
+    two.run(env, 1_200, &stop, &mut quiet).expect("run");
+    assert!(params_bits(&one) == params_bits(&two));
+    assert_eq!(one.obs_normalizer(), two.obs_normalizer());
+}

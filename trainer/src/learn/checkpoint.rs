@@ -4,21 +4,23 @@
 //! Writing is atomic: the file is written to `PATH.tmp`, flushed to disk, then renamed over `PATH`, so a
 //! crash leaves either the previous checkpoint or the new one, never a torn file.
 //!
-//! Format (little-endian): magic `DEXLRN01`; the [`RunConfig`] as JSON (u64 length + bytes); observation
-//! and action sizes; counters; shared parameters and second moments; per worker its generator, first
-//! moments, transition count and optional replay; the optional shared replay; finally an FNV-1a 64 hash
-//! of everything before it. Arrays are a u64 count then the values. A replay stores only its filled rows.
+//! Format (little-endian): magic `DEXLRN02`; the [`RunConfig`] as JSON (u64 length + bytes); observation
+//! and action sizes; counters; shared parameters, targets, second moments and the update count; the
+//! observation statistics; per worker its generator, first moments, transition count and optional
+//! replay; the optional shared replay; finally an FNV-1a 64 hash of everything before it. Arrays are a
+//! u64 count then the values. A replay stores only its filled rows.
 
 use super::LearnError;
 use super::adam::{AdamLocal, AdamShared};
 use super::ddpg::Networks;
+use super::norm::ObsStats;
 use super::replay::Replay;
 use super::rng::Rng;
 use super::trainer::{Counters, RunConfig, SharedState, Trainer, WorkerState};
 use std::io::Write;
 use std::path::Path;
 
-const MAGIC: &[u8; 8] = b"DEXLRN01";
+const MAGIC: &[u8; 8] = b"DEXLRN02";
 
 struct Enc {
     buf: Vec<u8>,
@@ -41,6 +43,10 @@ impl Enc {
         for x in v {
             self.buf.extend_from_slice(&x.to_le_bytes());
         }
+    }
+    fn f64s(&mut self, v: &[f64]) {
+        self.u64(v.len() as u64);
+        v.iter().for_each(|&x| self.f64(x));
     }
     fn rng(&mut self, r: &Rng) {
         let (s, spare) = r.state();
@@ -101,6 +107,15 @@ impl Dec<'_> {
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
+    }
+    fn f64s_len(&mut self, len: usize) -> Result<Vec<f64>, LearnError> {
+        let n = self.usize()?;
+        if n != len {
+            return Err(LearnError::BadCheckpoint(
+                "array size does not match the configuration",
+            ));
+        }
+        (0..n).map(|_| self.f64()).collect()
     }
     fn f32s_len(&mut self, len: usize) -> Result<Vec<f32>, LearnError> {
         let v = self.f32s()?;
@@ -191,6 +206,9 @@ impl Trainer {
             e.u64(a.t);
         }
         e.u64(s.updates);
+        e.u64(s.obs_stats.count);
+        e.f64s(&s.obs_stats.mean);
+        e.f64s(&s.obs_stats.m2);
         e.u64(self.workers.len() as u64);
         for w in &self.workers {
             e.rng(&w.rng);
@@ -247,6 +265,11 @@ impl Trainer {
             t: d.u64()?,
         };
         s.updates = d.u64()?;
+        s.obs_stats = ObsStats {
+            count: d.u64()?,
+            mean: d.f64s_len(obs_dim)?,
+            m2: d.f64s_len(obs_dim)?,
+        };
         t.shared = s;
         if d.usize()? != t.workers.len() {
             return Err(LearnError::BadCheckpoint("worker count does not match"));

@@ -4,6 +4,7 @@
 //! - [`nets`]: MLPs with hand-written backpropagation over preallocated buffers, on a single-threaded GEMM
 //!   ([`kernel`]; the engine choice is measured in docs/benchmarks.md).
 //! - [`adam`]: Adam with per-worker first moments and one shared second moment.
+//! - [`norm`]: optional observation normalisation, foldable into the actor for export.
 //! - [`replay`]: uniform ring-buffer replay. [`ddpg`]: the DDPG gradients and target networks.
 //! - [`env`](mod@env): the [`Env`] trait the learner drives, and a toy [`PointMass`] task for tests.
 //! - [`trainer`]: [`Trainer`] runs W worker threads (W = 1 is DPG-R) with R updates per environment step,
@@ -18,6 +19,7 @@ pub mod ddpg;
 pub mod env;
 pub mod kernel;
 pub mod nets;
+pub mod norm;
 pub mod replay;
 pub mod rng;
 pub mod trainer;
@@ -26,6 +28,7 @@ pub use adam::AdamConfig;
 pub use ddpg::{DdpgConfig, Networks, TargetUpdate};
 pub use env::{Env, PointMass, PointMassConfig, Step};
 pub use kernel::Engine;
+pub use norm::{Normalizer, ObsNormConfig};
 pub use rng::Rng;
 pub use trainer::{
     EvalConfig, EvalRecord, Event, NoiseConfig, Progress, ReplayConfig, RunConfig, RunSummary,

@@ -32,6 +32,7 @@ use super::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
 use super::ddpg::{DdpgConfig, Networks, UpdateBuffers, actor_gradient, critic_gradient};
 use super::env::Env;
 use super::nets::{Mlp, MlpScratch};
+use super::norm::{Normalizer, ObsNormConfig, ObsStats};
 use super::replay::Replay;
 use super::rng::Rng;
 use serde::{Deserialize, Serialize};
@@ -118,6 +119,8 @@ pub struct RunConfig {
     pub eval: EvalConfig,
     /// Cut training episodes after this many steps (the environment's own limit applies too).
     pub train_episode_steps: Option<usize>,
+    /// Observation normalisation (off by default; see [`Trainer::policy_params`] for export).
+    pub obs_norm: ObsNormConfig,
     /// Seed of everything random in the run.
     pub seed: u64,
 }
@@ -141,6 +144,7 @@ impl Default for RunConfig {
             learning_starts: 1_000,
             eval: EvalConfig::default(),
             train_episode_steps: None,
+            obs_norm: ObsNormConfig::default(),
             seed: 0,
         }
     }
@@ -269,6 +273,7 @@ pub(crate) struct SharedState {
     pub(crate) updates: u64,
     pub(crate) train_return_sum: f64,
     pub(crate) train_return_n: u64,
+    pub(crate) obs_stats: ObsStats,
 }
 
 impl Default for AdamShared {
@@ -326,6 +331,7 @@ impl Trainer {
             critic_adam: AdamShared::new(critic.len()),
             actor,
             critic,
+            obs_stats: ObsStats::new(obs_dim),
             ..SharedState::default()
         };
         let w = cfg.workers;
@@ -388,13 +394,33 @@ impl Trainer {
     /// The deterministic action of the current actor for one observation.
     pub fn act(&self, obs: &[f32], action: &mut [f32]) -> Result<(), LearnError> {
         let mut s = self.nets.actor.scratch(1);
-        let out = self
-            .nets
-            .actor
-            .forward(&self.shared.actor, obs, 1, &mut s)?;
+        let mut x = obs.to_vec();
+        if let Some(n) = self.obs_normalizer() {
+            let d = self.nets.obs_dim.min(x.len());
+            n.apply_rows(&mut x[..d]);
+        }
+        let out = self.nets.actor.forward(&self.shared.actor, &x, 1, &mut s)?;
         let n = action.len().min(out.len());
         action[..n].copy_from_slice(&out[..n]);
         Ok(())
+    }
+
+    /// The observation normaliser in use, if normalisation is on.
+    pub fn obs_normalizer(&self) -> Option<Normalizer> {
+        self.cfg
+            .obs_norm
+            .enabled
+            .then(|| self.shared.obs_stats.normalizer(self.cfg.obs_norm.min_std))
+    }
+
+    /// The actor's parameters for export: the raw parameters, or with normalisation on, the
+    /// parameters with the normaliser folded into the first layer, so the policy takes raw
+    /// observations (`Trainer::actor().0` describes both).
+    pub fn policy_params(&self) -> Result<Vec<f32>, LearnError> {
+        match self.obs_normalizer() {
+            Some(n) => n.fold_into_actor(&self.nets.actor, &self.shared.actor),
+            None => Ok(self.shared.actor.clone()),
+        }
     }
 
     /// Trains until at least `until_transitions` transitions (all workers, cumulative) have been
@@ -449,6 +475,7 @@ impl Trainer {
                 target_version: 0,
             }),
             returns: Mutex::new((s.train_return_sum, s.train_return_n)),
+            obs_stats: Mutex::new(s.obs_stats),
             replay: shared_replay.take().map(Mutex::new),
             transitions: AtomicU64::new(per.iter().sum()),
             per_worker: per.iter().map(|&t| AtomicU64::new(t)).collect(),
@@ -509,6 +536,7 @@ impl Trainer {
         let a = ctx.actor.into_inner().map_err(poisoned)?;
         let c = ctx.critic.into_inner().map_err(poisoned)?;
         let (train_return_sum, train_return_n) = ctx.returns.into_inner().map_err(poisoned)?;
+        let obs_stats = ctx.obs_stats.into_inner().map_err(poisoned)?;
         *shared = SharedState {
             actor: a.params,
             critic: c.params,
@@ -519,6 +547,7 @@ impl Trainer {
             updates: ctx.updates.load(Ordering::Relaxed),
             train_return_sum,
             train_return_n,
+            obs_stats,
         };
         *shared_replay = match ctx.replay {
             Some(m) => Some(
@@ -544,6 +573,7 @@ struct Ctx<'a> {
     actor: Mutex<NetShared>,
     critic: Mutex<NetShared>,
     returns: Mutex<(f64, u64)>,
+    obs_stats: Mutex<ObsStats>,
     replay: Option<Mutex<Replay>>,
     transitions: AtomicU64,
     per_worker: Vec<AtomicU64>,
@@ -609,6 +639,8 @@ struct Local {
     versions: [u64; 4],
     bufs: UpdateBuffers,
     act_scratch: MlpScratch,
+    /// The worker's copy of the observation normaliser (refreshed every step when on).
+    norm: Normalizer,
 }
 
 fn worker_loop<E: Env>(
@@ -639,26 +671,43 @@ fn worker_loop<E: Env>(
             versions: [a.version, c.version, a.target_version, c.target_version],
             bufs: UpdateBuffers::new(nets, cfg.ddpg.batch_size),
             act_scratch: nets.actor.scratch(1),
+            norm: lock(&ctx.obs_stats)?.normalizer(cfg.obs_norm.min_std),
         }
     };
     let mut obs = vec![0.0f32; od];
     let mut next_obs = vec![0.0f32; od];
     let mut action = vec![0.0f32; ad];
+    let mut obs_n = vec![0.0f32; od];
     let mut eval_scratch = nets.actor.scratch(1);
+    let norm_on = cfg.obs_norm.enabled;
+    let observe = |x: &[f32], norm: &mut Normalizer| -> Result<(), LearnError> {
+        if norm_on {
+            let mut st = lock(&ctx.obs_stats)?;
+            st.push(x);
+            st.write_normalizer(cfg.obs_norm.min_std, norm);
+        }
+        Ok(())
+    };
     env.reset(&mut ws.rng, &mut obs);
+    observe(&obs, &mut local.norm)?;
     let mut ep_steps = 0usize;
     let mut ep_return = 0.0f64;
     loop {
         if ctx.halted() {
             return Ok(());
         }
+        obs_n.copy_from_slice(&obs);
+        if norm_on {
+            local.norm.apply_rows(&mut obs_n);
+        }
         let mean = nets
             .actor
-            .forward(&local.actor, &obs, 1, &mut local.act_scratch)?;
+            .forward(&local.actor, &obs_n, 1, &mut local.act_scratch)?;
         for (a, &m) in action.iter_mut().zip(mean) {
             *a = ws.rng.normal(m, cfg.noise.std).clamp(-1.0, 1.0);
         }
         let step = env.step(&action, &mut next_obs);
+        observe(&next_obs, &mut local.norm)?;
         ep_steps += 1;
         ep_return += f64::from(step.reward);
         let cut = cfg.train_episode_steps.is_some_and(|n| ep_steps >= n);
@@ -702,6 +751,7 @@ fn worker_loop<E: Env>(
                     &cfg.eval,
                     &mut rng,
                     &mut eval_scratch,
+                    norm_on.then_some(&local.norm),
                 )?;
                 let train_return = {
                     let mut r = lock(&ctx.returns)?;
@@ -729,6 +779,7 @@ fn worker_loop<E: Env>(
                 return Ok(());
             }
             env.reset(&mut ws.rng, &mut obs);
+            observe(&obs, &mut local.norm)?;
             ep_steps = 0;
             ep_return = 0.0;
         }
@@ -744,6 +795,13 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         (Some(m), _) => lock(m)?.sample(&mut ws.rng, n, &mut local.bufs.batch),
         (None, Some(r)) => r.sample(&mut ws.rng, n, &mut local.bufs.batch),
         (None, None) => return Err(LearnError::Worker("no replay buffer")),
+    }
+    if cfg.obs_norm.enabled {
+        let rows = local.bufs.batch.len * nets.obs_dim;
+        local.norm.apply_rows(&mut local.bufs.batch.obs[..rows]);
+        local
+            .norm
+            .apply_rows(&mut local.bufs.batch.next_obs[..rows]);
     }
     {
         let a = lock(&ctx.actor)?;
@@ -828,9 +886,11 @@ fn evaluate<E: Env>(
     cfg: &EvalConfig,
     rng: &mut Rng,
     scratch: &mut MlpScratch,
+    norm: Option<&Normalizer>,
 ) -> Result<(f64, f64), LearnError> {
     let (od, ad) = (env.obs_dim(), env.act_dim());
     let mut obs = vec![0.0f32; od];
+    let mut obs_n = vec![0.0f32; od];
     let mut action = vec![0.0f32; ad];
     let mut total = 0.0f64;
     let mut successes = 0usize;
@@ -838,7 +898,11 @@ fn evaluate<E: Env>(
         env.reset(rng, &mut obs);
         let mut last_success = false;
         for _ in 0..cfg.max_steps.max(1) {
-            let out = actor.forward(params, &obs, 1, scratch)?;
+            obs_n.copy_from_slice(&obs);
+            if let Some(n) = norm {
+                n.apply_rows(&mut obs_n);
+            }
+            let out = actor.forward(params, &obs_n, 1, scratch)?;
             action.copy_from_slice(out);
             let step = env.step(&action, &mut obs);
             total += f64::from(step.reward);
@@ -876,5 +940,6 @@ pub fn evaluate_actor<E: Env>(
         &cfg,
         &mut Rng::seed_from_u64(seed),
         &mut scratch,
+        None,
     )
 }
