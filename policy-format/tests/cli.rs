@@ -9,7 +9,10 @@ const GOLDEN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden/small.dx
 
 #[test]
 fn inspect_prints_metadata_sizes_and_checksum() {
-    let out = Command::new(BIN).args(["inspect", GOLDEN]).output().unwrap();
+    let out = Command::new(BIN)
+        .args(["inspect", GOLDEN])
+        .output()
+        .unwrap();
     assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
     for needle in [
@@ -36,7 +39,10 @@ fn verify_accepts_good_and_refuses_corrupt_files() {
     let _ = std::fs::remove_file(&bad);
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("CRC-32"));
-    let missing = Command::new(BIN).args(["verify", "/nonexistent.dxpl"]).output().unwrap();
+    let missing = Command::new(BIN)
+        .args(["verify", "/nonexistent.dxpl"])
+        .output()
+        .unwrap();
     assert!(!missing.status.success());
     assert!(String::from_utf8_lossy(&missing.stderr).contains("cannot read"));
 }

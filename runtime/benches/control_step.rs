@@ -10,13 +10,12 @@ use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
 use dex_runtime::interface::ACT_DIM;
 use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
-use dex_runtime::{Controller, ControllerConfig, MockClock, Mlp};
+use dex_runtime::{Controller, ControllerConfig, Mlp, MockClock};
 
 /// The reference network: 48 inputs, two hidden ReLU layers of 256, 9 tanh outputs.
 pub fn mlp_48_256_256_9() -> Vec<u8> {
-    let action: Vec<(&str, f32, f32, f32)> = (0..ACT_DIM)
-        .map(|_| ("joint", 1.0, -1.0, 1.0))
-        .collect();
+    let action: Vec<(&str, f32, f32, f32)> =
+        (0..ACT_DIM).map(|_| ("joint", 1.0, -1.0, 1.0)).collect();
     synth_policy(&SynthSpec {
         task: Task::Stack,
         observation: &[("obs", 48)],
