@@ -56,9 +56,21 @@ pub struct ExportInfo {
     pub eval_episodes: u32,
 }
 
-/// Observation clip of exported policies. The learner sees raw observations (mean 0, scale 1 in the
-/// file), so the clip only has to stay clear of every plausible value (largest: 30 rad/s).
-pub const EXPORT_OBS_CLIP: f32 = 100.0;
+/// Observation clip of exported policies. The learner does not clip normalised observations, so the
+/// clip only has to stay clear of every value the learner saw: raw observations (mean 0, scale 1)
+/// are below 30 in magnitude, and normalised ones are bounded by the normaliser's standard-deviation
+/// floor.
+pub const EXPORT_OBS_CLIP: f32 = 1.0e4;
+
+/// The learner's observation normalisation, `(x - mean) * inv_std`, written into the file as
+/// mean and scale = 1 / inv_std.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObsNormalisation<'a> {
+    /// Subtracted per component.
+    pub mean: &'a [f32],
+    /// Multiplied per component after the subtraction.
+    pub inv_std: &'a [f32],
+}
 
 fn task_code(task: Task) -> dex_policy::Task {
     match task {
@@ -69,10 +81,16 @@ fn task_code(task: Task) -> dex_policy::Task {
     }
 }
 
-/// Encodes the actor `net` with parameters `params` as a policy file for the Jaco cell. The file's
-/// action layer maps the actor's tanh output in [-1, 1] to joint velocity commands exactly as the
-/// environment does (`scale` = the actuator's range).
-pub fn export_actor(net: &Mlp, params: &[f32], info: &ExportInfo) -> Result<Vec<u8>, ExportError> {
+/// Encodes the actor `net` with parameters `params` (and the observation normalisation it was trained
+/// with, if any) as a policy file for the Jaco cell. The file's action layer maps the actor's tanh
+/// output in [-1, 1] to joint velocity commands exactly as the environment does (`scale` = the
+/// actuator's range).
+pub fn export_actor(
+    net: &Mlp,
+    params: &[f32],
+    normalisation: Option<ObsNormalisation<'_>>,
+    info: &ExportInfo,
+) -> Result<Vec<u8>, ExportError> {
     let obs_dim = dex_runtime::interface::OBS_DIM;
     let act_dim = dex_runtime::interface::ACT_DIM;
     if net.input_dim() != obs_dim || net.output_dim() != act_dim {
@@ -86,8 +104,24 @@ pub fn export_actor(net: &Mlp, params: &[f32], info: &ExportInfo) -> Result<Vec<
     let layers = net.layers(params)?;
     let mut body_layers = heapless::Vec::<LayerSpec, { dex_policy::MAX_LAYERS }>::new();
     let mut values: Vec<f32> = Vec::with_capacity(params.len() + 2 * obs_dim);
-    values.extend(std::iter::repeat_n(0.0, obs_dim));
-    values.extend(std::iter::repeat_n(1.0, obs_dim));
+    match normalisation {
+        Some(n) if n.mean.len() == obs_dim && n.inv_std.len() == obs_dim => {
+            values.extend_from_slice(n.mean);
+            values.extend(n.inv_std.iter().map(|s| 1.0 / s));
+        }
+        Some(n) => {
+            return Err(ExportError::Shape {
+                inputs: n.mean.len(),
+                outputs: net.output_dim(),
+                obs: obs_dim,
+                act: act_dim,
+            });
+        }
+        None => {
+            values.extend(std::iter::repeat_n(0.0, obs_dim));
+            values.extend(std::iter::repeat_n(1.0, obs_dim));
+        }
+    }
     for (i, l) in layers.iter().enumerate() {
         if l.layer_norm.is_some() {
             return Err(ExportError::LayerNorm { layer: i });

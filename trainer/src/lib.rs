@@ -1,10 +1,17 @@
-//! The simulated Jaco stacking world and the DPG-R / ADPG-R learner.
+//! `dex-trainer`: the simulated Jaco stacking world, the DPG-R / ADPG-R learner, and the path from a
+//! trained actor to a policy file.
 //!
-//! Filled in by the environment and trainer issues; see `ARCHITECTURE.md`.
+//! - [`mod@env`]: the MuJoCo Jaco stacking environment: scene, tasks, the paper's rewards, the
+//!   observation of `dex_runtime::interface`, and a scripted demonstrator. It links MuJoCo 3.17.0,
+//!   which `scripts/setup-mujoco.sh` fetches once; see `docs/environment.md`.
+//! - [`learn`]: networks, Adam with a shared second moment, replay, DDPG and the multi-worker
+//!   [`learn::Trainer`]; see `docs/learner.md`.
+//! - [`jaco`]: the environment behind the learner's [`learn::Env`] trait.
+//! - [`export`]: a trained actor as a `dex-policy` file; [`evaluate`]: the success rate of such a
+//!   file run through the `dex-runtime` evaluator, the code a controller runs.
+//! - [`plot`]: learning curves like the paper's (mean and min-max band over seeds).
 //!
-//! - [`env`]: the MuJoCo Jaco stacking environment — scene, tasks, the paper's rewards, the observation of
-//!   `dex_runtime::interface`, and a scripted demonstrator. It links MuJoCo 3.17.0, which
-//!   `scripts/setup-mujoco.sh` fetches once; see `docs/environment.md`.
+//! The `trainer` binary puts these together (train, eval, plot, export).
 
 pub mod env;
 pub mod evaluate;

@@ -13,7 +13,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::Scene;
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
-use dex_trainer::export::{ExportInfo, export_actor};
+use dex_trainer::export::{ExportInfo, ObsNormalisation, export_actor};
 use dex_trainer::jaco::JacoLearnEnv;
 use dex_trainer::learn::{Event, Trainer};
 use dex_trainer::plot::{Condition, Metric, XAxis, plot, read_eval_log};
@@ -274,6 +274,11 @@ fn export_checkpoint_trainer(
     scene: &Scene,
 ) -> anyhow::Result<PolicyEval> {
     let (net, params) = trainer.actor();
+    let normaliser = trainer.obs_normalizer();
+    let norm = normaliser.as_ref().map(|n| ObsNormalisation {
+        mean: &n.mean,
+        inv_std: &n.inv_std,
+    });
     let mut info = ExportInfo {
         task: s.task.task(),
         seed,
@@ -281,7 +286,7 @@ fn export_checkpoint_trainer(
         success_rate: None,
         eval_episodes: 0,
     };
-    let draft = export_actor(net, params, &info)?;
+    let draft = export_actor(net, params, norm, &info)?;
     let settings = EvalSettings {
         env: s.reward.env_config(s.task.task()),
         episodes: s.final_eval_episodes,
@@ -292,7 +297,7 @@ fn export_checkpoint_trainer(
     let eval = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
     info.success_rate = Some(eval.success_rate() as f32);
     info.eval_episodes = eval.episodes;
-    write_atomic(out, &export_actor(net, params, &info)?)?;
+    write_atomic(out, &export_actor(net, params, norm, &info)?)?;
     let json = serde_json::json!({
         "policy": out.file_name().map(|n| n.to_string_lossy().to_string()),
         "episodes": eval.episodes,
