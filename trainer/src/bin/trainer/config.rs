@@ -243,7 +243,7 @@ mod tests {
         let bad = dir.join("bad.toml");
         std::fs::write(&bad, "[run]\nupdates_per_stepp = 40\n").unwrap();
         let e = load(Some(&bad)).unwrap_err();
-        assert!(format!("{e:#}").contains("run.updates_per_stepp"), "{e:#}");
+        assert!(format!("{e:#}").contains("updates_per_stepp"), "{e:#}");
         std::fs::write(&bad, "task = \"juggle\"\n").unwrap();
         assert!(load(Some(&bad)).is_err());
         let _ = std::fs::remove_dir_all(&dir);
