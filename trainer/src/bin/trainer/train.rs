@@ -133,8 +133,9 @@ pub fn train(args: TrainArgs) -> anyhow::Result<()> {
             return Ok(());
         }
     }
-    for f in plot_run(&s.out)? {
-        println!("plot: {}", f.display());
+    match plot_run(&s.out) {
+        Ok(files) => files.iter().for_each(|f| println!("plot: {}", f.display())),
+        Err(e) => eprintln!("no plot: {e:#}"),
     }
     Ok(())
 }
