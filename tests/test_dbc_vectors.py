@@ -11,20 +11,12 @@ from pathlib import Path
 import cantools
 import pytest
 
+from conftest import crc8_sae_j1850
+
 ROOT = Path(__file__).resolve().parent.parent
 DB = cantools.database.load_file(ROOT / "can" / "jaco.dbc")
 VECTORS = json.loads((ROOT / "tests" / "can" / "vectors.json").read_text())
 UNPROTECTED = {"NMT", "HEARTBEAT"}
-
-
-def crc8_sae_j1850(data: bytes) -> int:
-    """Reference CRC-8/SAE-J1850: poly 0x1D, init 0xFF, no reflection, final XOR 0xFF."""
-    crc = 0xFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc ^ 0xFF
 
 
 def test_reference_crc_check_value():

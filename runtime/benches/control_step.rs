@@ -4,32 +4,15 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)] // benchmark harness
 
 use criterion::{Criterion, black_box, criterion_group, criterion_main};
-use dex_policy::synth::{SynthSpec, synth_policy};
-use dex_policy::{Activation, PolicyView, Task};
+use dex_policy::PolicyView;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
 use dex_runtime::interface::ACT_DIM;
-use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
+use dex_runtime::testkit::{aligned_copy, jaco_policy, mlp_48_256_256_9, observation_trace};
 use dex_runtime::{Controller, ControllerConfig, Mlp, MockClock};
 
-/// The reference network: 48 inputs, two hidden ReLU layers of 256, 9 tanh outputs.
-pub fn mlp_48_256_256_9() -> Vec<u8> {
-    let action: Vec<(&str, f32, f32, f32)> =
-        (0..ACT_DIM).map(|_| ("joint", 1.0, -1.0, 1.0)).collect();
-    synth_policy(&SynthSpec {
-        task: Task::Stack,
-        observation: &[("obs", 48)],
-        action: &action,
-        hidden: &[256, 256],
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Tanh,
-        seed: 1,
-    })
-    .unwrap()
-}
-
 fn forward(c: &mut Criterion) {
-    let file = aligned_copy(&mlp_48_256_256_9());
+    let file = aligned_copy(&mlp_48_256_256_9().unwrap());
     let view = PolicyView::decode(file.as_bytes()).unwrap();
     let mut mlp = Mlp::<256>::new(&view).unwrap();
     let obs: Vec<f32> = (0..48).map(|i| (i as f32 * 0.37).sin()).collect();

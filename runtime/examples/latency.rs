@@ -4,12 +4,11 @@
 
 use std::time::Instant;
 
-use dex_policy::synth::{SynthSpec, synth_policy};
-use dex_policy::{Activation, PolicyView, Task};
+use dex_policy::PolicyView;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
 use dex_runtime::interface::ACT_DIM;
-use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
+use dex_runtime::testkit::{aligned_copy, jaco_policy, mlp_48_256_256_9, observation_trace};
 use dex_runtime::{Controller, ControllerConfig, Mlp, MockClock};
 
 fn report(name: &str, mut ns: Vec<u64>) {
@@ -26,16 +25,7 @@ fn report(name: &str, mut ns: Vec<u64>) {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let n: usize = std::env::args().nth(1).map_or(Ok(100_000), |a| a.parse())?;
-    let action: Vec<(&str, f32, f32, f32)> = (0..ACT_DIM).map(|_| ("j", 1.0, -1.0, 1.0)).collect();
-    let file = aligned_copy(&synth_policy(&SynthSpec {
-        task: Task::Stack,
-        observation: &[("obs", 48)],
-        action: &action,
-        hidden: &[256, 256],
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Tanh,
-        seed: 1,
-    })?);
+    let file = aligned_copy(&mlp_48_256_256_9()?);
     let view = PolicyView::decode(file.as_bytes())?;
     let mut mlp = Mlp::<256>::new(&view)?;
     let obs: Vec<f32> = (0..48).map(|i| (i as f32 * 0.37).sin()).collect();

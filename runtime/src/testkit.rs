@@ -29,6 +29,23 @@ pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
     })
 }
 
+/// The benchmark network of the runtime issue: 48 inputs (one field "obs"), two hidden ReLU layers
+/// of 256, 9 tanh outputs (unit scale and limits), seed 1. Not the cell's layout: for speed only.
+pub fn mlp_48_256_256_9() -> Result<Vec<u8>, FormatError> {
+    let action: Vec<(&str, f32, f32, f32)> = (0..crate::interface::ACT_DIM)
+        .map(|_| ("joint", 1.0, -1.0, 1.0))
+        .collect();
+    synth_policy(&SynthSpec {
+        task: Task::Stack,
+        observation: &[("obs", 48)],
+        action: &action,
+        hidden: &[256, 256],
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Tanh,
+        seed: 1,
+    })
+}
+
 /// `n` pseudo-random observations, each value within 90% of its quantity's limit.
 pub fn observation_trace(n: usize, seed: u64) -> Vec<[f32; OBS_DIM]> {
     let mut rng = SplitMix64::new(seed);
