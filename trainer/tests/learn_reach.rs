@@ -1,0 +1,44 @@
+//! The learning check CI runs: `trainer train` learns the Jaco Reach task from a fixed seed to at
+//! least 90% success, measured on the exported policy file through the controller's runtime
+//! (50 random starts, CAN quantisation on). Uses the tuned configuration
+//! `experiments/reach-g90-ln-clr1e-3.toml` (60k transitions; about 2-3 minutes on 2 cores, see
+//! docs/training.md). One worker and a fixed seed make the run deterministic on a given machine.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
+
+use std::process::Command;
+
+#[test]
+fn trainer_learns_reach_to_ninety_percent() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let out = std::env::temp_dir().join(format!("dex-learn-reach-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let status = Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .current_dir(root)
+        .args([
+            "train",
+            "--config",
+            "experiments/reach-g90-ln-clr1e-3.toml",
+            "--seeds",
+            "0",
+            "--final-eval-episodes",
+            "50",
+            "--quiet",
+            "--out",
+        ])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("seed-0/final_eval.json")).unwrap())
+            .unwrap();
+    let rate = summary["success_rate"].as_f64().unwrap();
+    assert_eq!(summary["episodes"].as_u64(), Some(50));
+    let policy = std::fs::read(out.join("seed-0/policy.dxpl")).unwrap();
+    let aligned = dex_runtime::testkit::aligned_copy(&policy);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes()).unwrap();
+    assert_eq!(view.body().provenance.success_rate, Some(rate as f32));
+    assert!(out.join("return.png").exists() && out.join("success.svg").exists());
+    let _ = std::fs::remove_dir_all(&out);
+    assert!(rate >= 0.9, "Reach success {rate} < 0.9");
+}
