@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
 use dex_trainer::env::{EnvConfig, Reward, Task};
-use dex_trainer::learn::RunConfig;
+use dex_trainer::learn::{RunConfig, TargetUpdate};
 
 /// Task names on the command line and in config files.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
@@ -108,17 +108,28 @@ pub struct TrainSettings {
     pub run: RunConfig,
 }
 
+/// The defaults learn Reach: 92% (46/50) for seed 0 after 60k transitions in about 165 s on two
+/// cores (`experiments/reach-g90-ln-clr1e-3.toml`, `docs/training.md` "Reach tuning log"); other
+/// seeds reach 80-86%. The short discount suits 50-step episodes with a dense reward; the critic's
+/// layer norm with critic lr 1e-3 made the step from ~60% to 80-90%.
 impl Default for TrainSettings {
     fn default() -> Self {
         let mut run = RunConfig::default();
         run.ddpg.actor_hidden = vec![128, 128];
         run.ddpg.critic_hidden = vec![128, 128];
-        run.updates_per_step = 1;
+        run.ddpg.critic_layer_norm = true;
+        run.ddpg.gamma = 0.9;
+        run.ddpg.batch_size = 128;
+        run.ddpg.target = TargetUpdate::Polyak { tau: 0.005 };
+        run.actor_adam.lr = 3e-4;
+        run.critic_adam.lr = 1e-3;
+        run.noise.std = 0.1;
+        run.updates_per_step = 2;
         run.replay.capacity = 200_000;
         TrainSettings {
             task: TaskArg::Reach,
-            reward: RewardArg::TaskDefault,
-            transitions: 30_000,
+            reward: RewardArg::ReachShaping,
+            transitions: 60_000,
             seeds: vec![0],
             out: PathBuf::from("runs/reach"),
             checkpoint_every: 10_000,
@@ -232,7 +243,7 @@ mod tests {
         assert_eq!(s.transitions, 5);
         assert_eq!(s.run.updates_per_step, 40);
         assert_eq!(s.run.ddpg.batch_size, 256);
-        assert_eq!(s.run.ddpg.gamma, RunConfig::default().ddpg.gamma);
+        assert_eq!(s.run.ddpg.gamma, TrainSettings::default().run.ddpg.gamma);
         let polyak = dir.join("polyak.toml");
         std::fs::write(&polyak, "[run.ddpg.target.polyak]\ntau = 0.01\n").unwrap();
         let s = load(Some(&polyak)).unwrap();
@@ -240,6 +251,10 @@ mod tests {
             s.run.ddpg.target,
             dex_trainer::learn::TargetUpdate::Polyak { tau: 0.01 }
         );
+        let copy = dir.join("copy.toml");
+        std::fs::write(&copy, "[run.ddpg.target.copy]\nevery = 50\n").unwrap();
+        let s = load(Some(&copy)).unwrap();
+        assert_eq!(s.run.ddpg.target, TargetUpdate::Copy { every: 50 });
         let bad = dir.join("bad.toml");
         std::fs::write(&bad, "[run]\nupdates_per_stepp = 40\n").unwrap();
         let e = load(Some(&bad)).unwrap_err();
