@@ -37,8 +37,14 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
 fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if let Some(t) = a.task {
         s.task = t;
-        if a.config.is_none() && a.out.is_none() {
-            s.out = PathBuf::from(format!("runs/{}", format!("{t:?}").to_lowercase()));
+        if a.config.is_none() {
+            if a.out.is_none() {
+                s.out = PathBuf::from(format!("runs/{}", format!("{t:?}").to_lowercase()));
+            }
+            // The default reward is Reach's dense one; another task gets its own reward.
+            if a.reward.is_none() && t != TaskArg::Reach {
+                s.reward = config::RewardArg::TaskDefault;
+            }
         }
     }
     if let Some(r) = a.reward {
