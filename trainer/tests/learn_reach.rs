@@ -10,7 +10,7 @@
 use std::process::Command;
 
 #[test]
-fn trainer_learns_reach_to_ninety_percent() {
+fn trainer_learns_reach() {
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
     let out = std::env::temp_dir().join(format!("dex-learn-reach-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
