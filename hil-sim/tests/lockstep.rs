@@ -2,12 +2,10 @@
 //! so the bus, the adapter and the plant node add nothing but transport.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+mod common;
 
-use dex_hil_sim::bus::{Bus, BusClock, BusConfig, ControlCommand, FaultKind, parse_control};
-use dex_hil_sim::node::{TimeMode, spawn_controller_node};
-use dex_hil_sim::plant::{ActionAssembler, Plant, PlantNode, PlantTiming, SyntheticPlant};
+use dex_hil_sim::bus::{ControlCommand, FaultKind, parse_control};
+use dex_hil_sim::plant::{ActionAssembler, Plant, SyntheticPlant};
 use dex_policy::PolicyView;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
@@ -19,33 +17,13 @@ const STEPS: u32 = 40;
 const SEEDS: [u64; 2] = [11, 12];
 
 fn over_the_bus(policy: &[u8]) -> Vec<[f32; ACT_DIM]> {
-    let bus = Bus::start(BusConfig {
-        clock: BusClock::Virtual,
-        ..BusConfig::default()
-    })
-    .unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let node = spawn_controller_node(
-        bus.addr(),
-        Some(policy.to_vec()),
-        TimeMode::Lockstep,
-        Arc::clone(&stop),
-        None,
-    )
-    .unwrap();
-    let mut plant_node = PlantNode::connect(&bus, PlantTiming::Lockstep, 0x10).unwrap();
-    plant_node.record = Some(Vec::new());
-    plant_node.start_controller().unwrap();
     let mut plant = SyntheticPlant::new(STEPS);
-    for seed in SEEDS {
-        let r = plant_node.episode(&mut plant, seed, STEPS).unwrap();
+    let episodes: Vec<(u64, u32)> = SEEDS.iter().map(|&s| (s, STEPS)).collect();
+    let (actions, reports) = common::lockstep_over_the_bus(policy, &mut plant, &episodes);
+    for r in reports {
         assert_eq!(r.steps, STEPS);
         assert_eq!(r.steps_without_action, 0);
     }
-    let actions = plant_node.record.take().unwrap();
-    stop.store(true, Ordering::SeqCst);
-    node.join().unwrap().unwrap();
-    bus.shutdown();
     actions
 }
 

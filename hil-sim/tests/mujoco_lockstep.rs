@@ -4,12 +4,9 @@
 #![cfg(feature = "mujoco")]
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+mod common;
 
-use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
-use dex_hil_sim::node::{TimeMode, spawn_controller_node};
-use dex_hil_sim::plant::{MujocoPlant, Plant, PlantNode, PlantTiming};
+use dex_hil_sim::plant::{MujocoPlant, Plant};
 use dex_policy::PolicyView;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
@@ -22,29 +19,10 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
     let policy = jaco_policy(&[64, 64], 9).unwrap();
     let seed = 4;
 
-    let bus = Bus::start(BusConfig {
-        clock: BusClock::Virtual,
-        ..BusConfig::default()
-    })
-    .unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let node = spawn_controller_node(
-        bus.addr(),
-        Some(policy.clone()),
-        TimeMode::Lockstep,
-        Arc::clone(&stop),
-        None,
-    )
-    .unwrap();
-    let mut plant_node = PlantNode::connect(&bus, PlantTiming::Lockstep, 0x10).unwrap();
-    plant_node.record = Some(Vec::new());
-    plant_node.start_controller().unwrap();
     let mut plant = MujocoPlant::new(Task::Stack).unwrap();
-    let report = plant_node.episode(&mut plant, seed, u32::MAX).unwrap();
-    let over_bus = plant_node.record.take().unwrap();
-    stop.store(true, Ordering::SeqCst);
-    node.join().unwrap().unwrap();
-    bus.shutdown();
+    let (over_bus, reports) =
+        common::lockstep_over_the_bus(&policy, &mut plant, &[(seed, u32::MAX)]);
+    let report = &reports[0];
 
     let bytes = aligned_copy(&policy);
     let view = PolicyView::decode(bytes.as_bytes()).unwrap();

@@ -1,0 +1,46 @@
+//! Shared set-up of the lockstep tests: a virtual-time bus, the controller node with a policy, and
+//! a plant node that records every action it applies.
+#![allow(clippy::unwrap_used, clippy::expect_used, dead_code)] // test helper
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
+use dex_hil_sim::node::{TimeMode, spawn_controller_node};
+use dex_hil_sim::plant::{EpisodeReport, Plant, PlantNode, PlantTiming};
+use dex_runtime::interface::ACT_DIM;
+
+/// Runs `episodes` (seed, step limit) of `plant` in lockstep over the bus with `policy` in the
+/// controller node; returns every applied action and each episode's report.
+pub fn lockstep_over_the_bus(
+    policy: &[u8],
+    plant: &mut dyn Plant,
+    episodes: &[(u64, u32)],
+) -> (Vec<[f32; ACT_DIM]>, Vec<EpisodeReport>) {
+    let bus = Bus::start(BusConfig {
+        clock: BusClock::Virtual,
+        ..BusConfig::default()
+    })
+    .unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let node = spawn_controller_node(
+        bus.addr(),
+        Some(policy.to_vec()),
+        TimeMode::Lockstep,
+        Arc::clone(&stop),
+        None,
+    )
+    .unwrap();
+    let mut plant_node = PlantNode::connect(&bus, PlantTiming::Lockstep, 0x10).unwrap();
+    plant_node.record = Some(Vec::new());
+    plant_node.start_controller().unwrap();
+    let reports = episodes
+        .iter()
+        .map(|&(seed, steps)| plant_node.episode(plant, seed, steps).unwrap())
+        .collect();
+    let actions = plant_node.record.take().unwrap();
+    stop.store(true, Ordering::SeqCst);
+    node.join().unwrap().unwrap();
+    bus.shutdown();
+    (actions, reports)
+}
