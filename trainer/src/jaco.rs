@@ -2,11 +2,15 @@
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
-use crate::env::{EnvConfig, EnvError, JacoEnv, Scene};
+use crate::env::{EnvConfig, EnvError, JacoEnv, Observation, Scene, StartScheme, StartStates};
 use crate::learn::{Env, Rng, Step};
 
 /// A [`JacoEnv`] driven by the learner: episodes start from seeds drawn from the learner's generator and
-/// end at the task's step budget (a time limit: the last state is still bootstrapped).
+/// end at the step budget (a time limit: the last state is still bootstrapped).
+///
+/// Training episodes start as the [`StartScheme`] says (and run its training length); evaluation
+/// episodes ([`Env::reset_eval`]) always start from the task's original starts and run the task's full
+/// length, so curves of different schemes compare.
 ///
 /// The learner's trait has no error channel, so a simulation error (a diverged state, which a
 /// clipped, finite action should never cause) ends the episode with zero reward and is counted in
@@ -14,6 +18,9 @@ use crate::learn::{Env, Rng, Step};
 #[derive(Debug)]
 pub struct JacoLearnEnv {
     env: JacoEnv,
+    starts: StartStates,
+    train_steps: u32,
+    eval_steps: u32,
     max_steps: u32,
     /// Simulation errors met so far (each ended its episode).
     pub errors: u64,
@@ -22,19 +29,68 @@ pub struct JacoLearnEnv {
 }
 
 impl JacoLearnEnv {
-    /// An environment for `config` over the shared `scene`.
+    /// An environment for `config` over the shared `scene`, training from the original starts.
     pub fn new(scene: &Scene, config: EnvConfig) -> Self {
         JacoLearnEnv {
             max_steps: config.episode_steps,
+            train_steps: config.episode_steps,
+            eval_steps: config.episode_steps,
+            starts: StartStates::original(config.task),
             env: JacoEnv::new(scene, config),
             errors: 0,
             last_error: None,
         }
     }
 
+    /// An environment whose training episodes start under `scheme` (scripted demonstrations).
+    pub fn with_starts(
+        scene: &Scene,
+        config: EnvConfig,
+        scheme: StartScheme,
+    ) -> Result<Self, EnvError> {
+        Ok(Self::with_start_states(
+            scene,
+            config,
+            StartStates::scripted(scheme, config.task)?,
+        ))
+    }
+
+    /// An environment whose training episodes start from `starts` (already validated; clone one
+    /// per worker).
+    pub fn with_start_states(scene: &Scene, config: EnvConfig, starts: StartStates) -> Self {
+        let mut env = Self::new(scene, config);
+        env.train_steps = starts.scheme().train_episode_steps(config.episode_steps);
+        env.max_steps = env.train_steps;
+        env.starts = starts;
+        env
+    }
+
     /// The wrapped environment.
     pub fn inner(&self) -> &JacoEnv {
         &self.env
+    }
+
+    /// Runs `make` from fresh seeds until it gives a start (at most 8 tries; each failure is counted).
+    fn start(
+        &mut self,
+        rng: &mut Rng,
+        obs: &mut [f32],
+        make: impl Fn(&mut JacoEnv, &mut StartStates, u64) -> Result<Observation, EnvError>,
+    ) {
+        for _ in 0..8 {
+            match make(&mut self.env, &mut self.starts, rng.next_u64()) {
+                Ok(o) => {
+                    let n = obs.len().min(OBS_DIM);
+                    obs[..n].copy_from_slice(&o[..n]);
+                    return;
+                }
+                Err(e) => {
+                    self.errors += 1;
+                    self.last_error = Some(e);
+                }
+            }
+        }
+        obs.fill(0.0);
     }
 
     fn fail(&mut self, e: EnvError) -> Step {
@@ -59,21 +115,15 @@ impl Env for JacoLearnEnv {
     }
 
     fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) {
-        // A start state that cannot be made within the attempts is retried from fresh seeds.
-        for _ in 0..8 {
-            match self.env.reset(rng.next_u64()) {
-                Ok(o) => {
-                    let n = obs.len().min(OBS_DIM);
-                    obs[..n].copy_from_slice(&o[..n]);
-                    return;
-                }
-                Err(e) => {
-                    self.errors += 1;
-                    self.last_error = Some(e);
-                }
-            }
-        }
-        obs.fill(0.0);
+        self.max_steps = self.train_steps;
+        self.start(rng, obs, |env, starts, seed| {
+            starts.reset(env, seed).map(|h| h.observation)
+        });
+    }
+
+    fn reset_eval(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+        self.max_steps = self.eval_steps;
+        self.start(rng, obs, |env, _, seed| env.reset(seed));
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {

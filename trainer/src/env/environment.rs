@@ -157,8 +157,14 @@ impl JacoEnv {
 
     /// Starts a new episode from the start-state distribution of the task, drawn from `seed` alone.
     pub fn reset(&mut self, seed: u64) -> Result<Observation, EnvError> {
+        self.reset_with_start(seed, self.config.task)
+    }
+
+    /// Starts a new episode of the configured task from the start-state distribution of `start`
+    /// (e.g. a Stack episode from the StackInHand start, brick 1 already grasped and lifted).
+    pub fn reset_with_start(&mut self, seed: u64, start: Task) -> Result<Observation, EnvError> {
         let mut rng = SeedRng::new(seed);
-        let task = self.config.task;
+        let task = start;
         for _ in 0..MAX_START_ATTEMPTS {
             if self.try_start_state(&mut rng, task)? {
                 self.steps = 0;
@@ -248,6 +254,13 @@ impl JacoEnv {
         self.steps = snapshot.steps;
         self.refresh_observation();
         Ok(self.observation)
+    }
+
+    /// Makes the current state the first of a new episode: the step counter goes back to zero (the
+    /// state itself is kept). Used when a state reached by simulation is handed to the learner.
+    pub fn begin_episode(&mut self) -> Observation {
+        self.steps = 0;
+        self.observation
     }
 
     fn refresh_observation(&mut self) {

@@ -66,4 +66,7 @@ pub enum EnvError {
         #[source]
         source: MjDataError,
     },
+    /// A start-state scheme's setting is out of range, or it could not make a start.
+    #[error("start-state scheme: {0}")]
+    StartScheme(String),
 }

@@ -9,6 +9,8 @@
 //!   the paper's reward functions, built from the reach/grasp/stack [`Predicates`] ([`rewards`]).
 //! - The observation ([`observation`]) follows `dex_runtime::interface::OBSERVATION_FIELDS` exactly.
 //! - [`Demonstrator`] is a scripted state-based controller that solves the tasks ([`demo`]).
+//! - [`StartStates`] makes training starts under a [`StartScheme`]: original, in-hand mixture, or
+//!   states along demonstrations ([`start_states`]).
 //!
 //! Not here: rendering, the learner, and the real robot's CAN side.
 
@@ -20,6 +22,7 @@ pub mod observation;
 pub mod rewards;
 pub mod rng;
 pub mod scene;
+pub mod start_states;
 pub mod tasks;
 
 pub use demo::{Demonstrator, Phase};
@@ -28,4 +31,5 @@ pub use error::EnvError;
 pub use observation::Observation;
 pub use rewards::{Predicates, Reward, RewardState};
 pub use scene::{AssetPaths, Scene};
+pub use start_states::{Demonstration, Handover, StartKind, StartScheme, StartStates};
 pub use tasks::Task;

@@ -36,6 +36,12 @@ pub trait Env {
     fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]);
     /// Applies `action` (each component in `[-1, 1]`); writes the next observation.
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
+    /// Starts an evaluation episode. Environments whose training episodes start elsewhere (instructive
+    /// start states) or run shorter override this so that evaluation keeps the task's own starts and
+    /// length; by default it is [`Env::reset`].
+    fn reset_eval(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+        self.reset(rng, obs);
+    }
 }
 
 impl<E: Env + ?Sized> Env for Box<E> {
@@ -50,6 +56,9 @@ impl<E: Env + ?Sized> Env for Box<E> {
     }
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
         (**self).step(action, obs)
+    }
+    fn reset_eval(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+        (**self).reset_eval(rng, obs)
     }
 }
 

@@ -895,7 +895,7 @@ fn evaluate<E: Env>(
     let mut total = 0.0f64;
     let mut successes = 0usize;
     for _ in 0..cfg.episodes {
-        env.reset(rng, &mut obs);
+        env.reset_eval(rng, &mut obs);
         let mut last_success = false;
         for _ in 0..cfg.max_steps.max(1) {
             obs_n.copy_from_slice(&obs);

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
-use dex_trainer::env::{EnvConfig, Reward, Task};
+use dex_trainer::env::{EnvConfig, Reward, StartScheme, Task};
 use dex_trainer::learn::{RunConfig, TargetUpdate};
 
 /// Task names on the command line and in config files.
@@ -84,6 +84,55 @@ impl RewardArg {
     }
 }
 
+/// Start-state scheme names on the command line and in config files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StartArg {
+    /// The task's own start states.
+    Original,
+    /// The in-hand start with probability `start.in_hand_probability`, else the original one.
+    Mixture,
+    /// States along the scripted demonstrator's trajectories; short training episodes.
+    AlongDemonstrations,
+}
+
+/// Where training episodes start (evaluation always uses the task's original starts, full length).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartSettings {
+    /// The scheme.
+    pub scheme: StartArg,
+    /// Probability of the in-hand start under `mixture`.
+    pub in_hand_probability: f64,
+    /// Training episode length under `along-demonstrations` (the paper: 50; evaluation keeps 150).
+    pub train_episode_steps: u32,
+}
+
+impl Default for StartSettings {
+    fn default() -> Self {
+        StartSettings {
+            scheme: StartArg::Original,
+            in_hand_probability: 0.5,
+            train_episode_steps: dex_trainer::env::start_states::DEMO_TRAIN_EPISODE_STEPS,
+        }
+    }
+}
+
+impl StartSettings {
+    /// The environment's scheme.
+    pub fn scheme(&self) -> StartScheme {
+        match self.scheme {
+            StartArg::Original => StartScheme::Original,
+            StartArg::Mixture => StartScheme::Mixture {
+                in_hand_probability: self.in_hand_probability,
+            },
+            StartArg::AlongDemonstrations => StartScheme::AlongDemonstrations {
+                train_episode_steps: self.train_episode_steps,
+            },
+        }
+    }
+}
+
 /// Everything `trainer train` does, after merging defaults, the file and the flags.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -92,6 +141,8 @@ pub struct TrainSettings {
     pub task: TaskArg,
     /// Reward function.
     pub reward: RewardArg,
+    /// Where training episodes start.
+    pub start: StartSettings,
     /// Transitions per seed (all workers together).
     pub transitions: u64,
     /// Seeds, one run each.
@@ -129,6 +180,7 @@ impl Default for TrainSettings {
         TrainSettings {
             task: TaskArg::Reach,
             reward: RewardArg::ReachShaping,
+            start: StartSettings::default(),
             transitions: 60_000,
             seeds: vec![0],
             out: PathBuf::from("runs/reach"),
@@ -214,6 +266,10 @@ impl TrainSettings {
         if self.checkpoint_every == 0 {
             bail!("checkpoint_every must be positive");
         }
+        self.start
+            .scheme()
+            .validate()
+            .context("invalid [start] settings")?;
         self.run.validate().context("invalid learner settings")?;
         Ok(())
     }
@@ -260,6 +316,24 @@ mod tests {
         let e = load(Some(&bad)).unwrap_err();
         assert!(format!("{e:#}").contains("updates_per_stepp"), "{e:#}");
         std::fs::write(&bad, "task = \"juggle\"\n").unwrap();
+        assert!(load(Some(&bad)).is_err());
+        let demo = dir.join("demo.toml");
+        std::fs::write(&demo, "[start]\nscheme = \"along-demonstrations\"\n").unwrap();
+        let s = load(Some(&demo)).unwrap();
+        assert_eq!(
+            s.start.scheme(),
+            StartScheme::AlongDemonstrations {
+                train_episode_steps: 50
+            }
+        );
+        std::fs::write(
+            &bad,
+            "[start]\nscheme = \"mixture\"\nin_hand_probability = 1.5\n",
+        )
+        .unwrap();
+        let e = load(Some(&bad)).unwrap().validate().unwrap_err();
+        assert!(format!("{e:#}").contains("in-hand probability"), "{e:#}");
+        std::fs::write(&bad, "[start]\nscheme = \"teleport\"\n").unwrap();
         assert!(load(Some(&bad)).is_err());
         let _ = std::fs::remove_dir_all(&dir);
     }

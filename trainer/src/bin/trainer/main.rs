@@ -16,7 +16,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 
-use config::{RewardArg, TaskArg};
+use config::{RewardArg, StartArg, TaskArg};
 
 #[derive(Parser)]
 #[command(
@@ -56,6 +56,12 @@ struct TrainArgs {
     /// Reward function.
     #[arg(long, value_enum)]
     reward: Option<RewardArg>,
+    /// Where training episodes start (evaluation always uses the task's original starts).
+    #[arg(long, value_enum)]
+    start: Option<StartArg>,
+    /// Probability of the in-hand start under `--start mixture`.
+    #[arg(long)]
+    in_hand_probability: Option<f64>,
     /// Mini-batch updates per environment step (the paper's R).
     #[arg(short = 'R', long = "replay-steps")]
     replay_steps: Option<usize>,

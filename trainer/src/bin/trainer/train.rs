@@ -11,7 +11,7 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-use dex_trainer::env::Scene;
+use dex_trainer::env::{Scene, StartStates};
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
 use dex_trainer::export::{ExportInfo, ObsNormalisation, export_actor};
 use dex_trainer::jaco::JacoLearnEnv;
@@ -49,6 +49,12 @@ fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if let Some(r) = a.reward {
         s.reward = r;
+    }
+    if let Some(st) = a.start {
+        s.start.scheme = st;
+    }
+    if let Some(p) = a.in_hand_probability {
+        s.start.in_hand_probability = p;
     }
     if let Some(r) = a.replay_steps {
         s.run.updates_per_step = r;
@@ -188,6 +194,8 @@ fn train_seed(
         .open(&log_path)
         .with_context(|| format!("cannot open {}", log_path.display()))?;
     let env_cfg = s.reward.env_config(s.task.task());
+    let starts = StartStates::scripted(s.start.scheme(), env_cfg.task)
+        .context("invalid [start] settings")?;
     let pb = bar(
         s.transitions,
         args.quiet,
@@ -207,7 +215,7 @@ fn train_seed(
         let target = (done / s.checkpoint_every + 1) * s.checkpoint_every;
         let mut write_err = None;
         let summary = trainer.run(
-            |_| JacoLearnEnv::new(scene, env_cfg),
+            |_| JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone()),
             target.min(s.transitions),
             stop,
             &mut |ev| match ev {

@@ -1,0 +1,226 @@
+//! Instructive start states: the schemes hand over states the simulation reached, deterministically,
+//! and a held brick stays held after the hand-over (needs `scripts/setup-mujoco.sh` to have run).
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::sync::OnceLock;
+
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_trainer::env::{
+    Demonstrator, EnvConfig, JacoEnv, Scene, StartKind, StartScheme, StartStates, Task,
+};
+use dex_trainer::jaco::JacoLearnEnv;
+use dex_trainer::learn::{Env, Rng};
+
+fn scene() -> &'static Scene {
+    static SCENE: OnceLock<Scene> = OnceLock::new();
+    SCENE.get_or_init(|| match Scene::load() {
+        Ok(s) => s,
+        Err(e) => panic!("{e}"),
+    })
+}
+
+fn bits(o: &[f32; OBS_DIM]) -> Vec<u32> {
+    o.iter().map(|x| x.to_bits()).collect()
+}
+
+/// Arm still, fingers closing: what a policy that keeps its grip would command.
+const HOLD: [f32; ACT_DIM] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0];
+
+/// Brick 1 is within 3 cm of the pinch site and above 4 cm, for `steps` steps of the hold action.
+fn assert_held(env: &mut JacoEnv, steps: usize, what: &str) {
+    let dist = |env: &JacoEnv| {
+        let s = env.reward_state();
+        let d: f64 = (0..3).map(|i| (s.brick1_pos[i] - s.pinch[i]).powi(2)).sum();
+        (d.sqrt(), s.brick1_pos[2])
+    };
+    let (d0, z0) = dist(env);
+    assert!(
+        d0 < 0.03 && z0 > 0.04,
+        "{what}: not held at hand-over: d {d0:.3} z {z0:.3}"
+    );
+    for t in 0..steps {
+        env.step(&HOLD).unwrap();
+        let (d, z) = dist(env);
+        assert!(
+            d < 0.03 && z > 0.04,
+            "{what}: brick slipped {t} steps after the hand-over: d {d:.3} z {z:.3}"
+        );
+    }
+}
+
+#[test]
+fn scheme_settings_are_checked() {
+    for bad in [
+        StartScheme::Mixture {
+            in_hand_probability: -0.1,
+        },
+        StartScheme::Mixture {
+            in_hand_probability: f64::NAN,
+        },
+        StartScheme::AlongDemonstrations {
+            train_episode_steps: 0,
+        },
+    ] {
+        assert!(StartStates::scripted(bad, Task::Stack).is_err(), "{bad:?}");
+    }
+    assert_eq!(
+        StartScheme::along_demonstrations().train_episode_steps(150),
+        50
+    );
+    assert_eq!(StartScheme::Original.train_episode_steps(150), 150);
+}
+
+#[test]
+fn mixture_draws_in_hand_starts_at_its_rate_and_they_are_held() {
+    let mut env = JacoEnv::new(scene(), EnvConfig::new(Task::Stack));
+    let mut all = StartStates::scripted(
+        StartScheme::Mixture {
+            in_hand_probability: 1.0,
+        },
+        Task::Stack,
+    )
+    .unwrap();
+    let mut none = StartStates::scripted(
+        StartScheme::Mixture {
+            in_hand_probability: 0.0,
+        },
+        Task::Stack,
+    )
+    .unwrap();
+    let mut half = StartStates::scripted(
+        StartScheme::Mixture {
+            in_hand_probability: 0.5,
+        },
+        Task::Stack,
+    )
+    .unwrap();
+    for seed in 0..3 {
+        let h = all.reset(&mut env, seed).unwrap();
+        assert_eq!(h.kind, StartKind::InHand);
+        assert_eq!(env.steps_taken(), 0);
+        assert_held(&mut env, 10, &format!("in-hand seed {seed}"));
+        let h = none.reset(&mut env, seed).unwrap();
+        assert_eq!(h.kind, StartKind::Original);
+        // The original start of a seed is the same under every scheme.
+        assert_eq!(bits(&h.observation), bits(&env.reset(seed).unwrap()));
+    }
+    let in_hand = (0..40)
+        .filter(|&seed| {
+            let kind = half.reset(&mut env, seed).unwrap().kind;
+            // The coin is drawn from the seed alone.
+            assert_eq!(kind, half.reset(&mut env, seed).unwrap().kind);
+            kind == StartKind::InHand
+        })
+        .count();
+    assert!((10..=30).contains(&in_hand), "{in_hand}/40 in-hand starts");
+}
+
+#[test]
+fn states_along_demonstrations_are_the_demonstrators_states_and_held_bricks_stay_held() {
+    let cfg = EnvConfig::new(Task::Stack);
+    let mut env = JacoEnv::new(scene(), cfg);
+    let mut starts =
+        StartStates::scripted(StartScheme::along_demonstrations(), Task::Stack).unwrap();
+    let mut ks = Vec::new();
+    for seed in 0..12 {
+        let h = starts.reset(&mut env, seed).unwrap();
+        let StartKind::Demonstration { k, n, solved } = h.kind else {
+            panic!("{:?}", h.kind)
+        };
+        assert!(
+            solved,
+            "seed {seed}: the demonstrator did not stack within 150 steps"
+        );
+        assert!((1..=n).contains(&k) && n <= 150, "k {k} n {n}");
+        assert_eq!(
+            env.steps_taken(),
+            0,
+            "the episode clock restarts at the hand-over"
+        );
+        ks.push(k);
+        // Same seed, same hand-over, bit for bit.
+        let again = starts.reset(&mut env, seed).unwrap();
+        assert_eq!(again.kind, h.kind);
+        assert_eq!(bits(&again.observation), bits(&h.observation));
+        // The state is the one the demonstrator reaches after k steps from the original start.
+        let mut replay = JacoEnv::new(scene(), cfg);
+        replay.reset(seed).unwrap();
+        let mut demo = Demonstrator::new(Task::Stack);
+        for _ in 0..k {
+            let a = demo.act(&replay);
+            replay.step(&a).unwrap();
+        }
+        assert_eq!(
+            bits(replay.observation()),
+            bits(&h.observation),
+            "seed {seed}"
+        );
+    }
+    assert!(
+        ks.iter().any(|&k| k < 40) && ks.iter().any(|&k| k > 60),
+        "hand-overs should spread over the trajectory: {ks:?}"
+    );
+}
+
+#[test]
+fn demonstration_states_with_the_brick_in_the_air_stay_held_after_a_hand_over() {
+    let cfg = EnvConfig::new(Task::Stack);
+    let mut env = JacoEnv::new(scene(), cfg);
+    let mut demo = Demonstrator::new(Task::Stack);
+    env.reset(0).unwrap();
+    let mut aloft = Vec::new();
+    for _ in 0..150 {
+        let a = demo.act(&env);
+        let out = env.step(&a).unwrap();
+        let s = env.reward_state();
+        let d = (0..3)
+            .map(|i| (s.brick1_pos[i] - s.pinch[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        if out.predicates.grasp && !out.predicates.stack && d < 0.03 && s.brick1_pos[2] > 0.045 {
+            aloft.push((env.steps_taken(), env.snapshot()));
+        }
+    }
+    assert!(aloft.len() >= 3, "the demonstrator never carried the brick");
+    // First, middle and last carried state, each handed to a fresh environment.
+    for i in [0, aloft.len() / 2, aloft.len() - 1] {
+        let (k, snap) = &aloft[i];
+        let mut handed = JacoEnv::new(scene(), cfg);
+        handed.restore(snap).unwrap();
+        handed.begin_episode();
+        assert_eq!(handed.steps_taken(), 0);
+        assert_held(&mut handed, 10, &format!("demonstration step {k}"));
+    }
+}
+
+#[test]
+fn learner_env_trains_short_episodes_from_demonstrations_and_evaluates_full_ones_from_original_starts()
+ {
+    let cfg = EnvConfig::new(Task::Grasp);
+    let mut env =
+        JacoLearnEnv::with_starts(scene(), cfg, StartScheme::along_demonstrations()).unwrap();
+    let mut rng = Rng::seed_from_u64(3);
+    let mut obs = [0.0f32; OBS_DIM];
+    let run = |env: &mut JacoLearnEnv, obs: &mut [f32; OBS_DIM]| {
+        let mut steps = 0;
+        loop {
+            steps += 1;
+            if env.step(&[0.0; ACT_DIM], obs).done() {
+                return steps;
+            }
+        }
+    };
+    env.reset(&mut rng, &mut obs);
+    assert_eq!(run(&mut env, &mut obs), 50);
+    // Evaluation: original start (the same one a plain environment gives for the seed), 150 steps.
+    let mut probe = rng.clone();
+    let seed = probe.next_u64();
+    env.reset_eval(&mut rng, &mut obs);
+    let mut plain = JacoEnv::new(scene(), cfg);
+    assert_eq!(bits(&obs), bits(&plain.reset(seed).unwrap()));
+    assert_eq!(run(&mut env, &mut obs), 150);
+    env.reset(&mut rng, &mut obs);
+    assert_eq!(run(&mut env, &mut obs), 50);
+    assert_eq!(env.errors, 0);
+}
