@@ -5,10 +5,12 @@
 //! trainer train [--config FILE.toml] [--task reach] [--transitions N] [--seeds 0,1,2] [-R 5] [-W 2] ...
 //! trainer eval POLICY.dxpl [--episodes 100] [--seed 0]
 //! trainer plot RUN_DIR
+//! trainer figure experiments/figures/FIGURE.toml [--transitions N] [--seeds 0,1] [--plot-only]
 //! trainer export RUN_DIR [--seed 0] [--out FILE.dxpl]
 //! ```
 
 mod config;
+mod figure;
 mod train;
 
 use std::path::PathBuf;
@@ -42,10 +44,31 @@ enum Command {
     },
     /// Export a seed's latest checkpoint as a policy file.
     Export(ExportArgs),
+    /// Train (resuming) the runs of a figure file, then plot them together (PNG and SVG).
+    Figure(FigureArgs),
+}
+
+/// `trainer figure` flags.
+#[derive(Args, Debug)]
+struct FigureArgs {
+    /// Figure file (see experiments/figures/).
+    figure: PathBuf,
+    /// Transition budget per seed for every run (a smaller honest version, or more).
+    #[arg(long)]
+    transitions: Option<u64>,
+    /// Seeds for every run, comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    seeds: Option<Vec<u64>>,
+    /// Only draw the plots from what is trained.
+    #[arg(long)]
+    plot_only: bool,
+    /// One line per evaluation instead of progress bars.
+    #[arg(long)]
+    quiet: bool,
 }
 
 /// Flags override the config file, which overrides the defaults.
-#[derive(Args, Debug, Default)]
+#[derive(Args, Debug, Default, Clone)]
 struct TrainArgs {
     /// TOML settings file (see experiments/ for examples).
     #[arg(long)]
@@ -153,6 +176,15 @@ fn main() -> anyhow::Result<()> {
                 println!("wrote {}", f.display());
             }
             Ok(())
+        }
+        Command::Figure(f) => {
+            let overrides = TrainArgs {
+                transitions: f.transitions,
+                seeds: f.seeds,
+                quiet: f.quiet,
+                ..TrainArgs::default()
+            };
+            figure::figure(&f.figure, &overrides, f.plot_only)
         }
         Command::Export(args) => {
             let dir = args.run.join(format!("seed-{}", args.seed));

@@ -15,7 +15,7 @@ use dex_trainer::env::{Scene, StartStates};
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
 use dex_trainer::export::{ExportInfo, ObsNormalisation, export_actor};
 use dex_trainer::jaco::JacoLearnEnv;
-use dex_trainer::learn::{Event, Trainer};
+use dex_trainer::learn::{EvalRecord, Event, Trainer};
 use dex_trainer::plot::{Condition, Metric, XAxis, plot, read_eval_log};
 
 use crate::config::{self, TaskArg, TrainSettings};
@@ -114,18 +114,28 @@ fn bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
     b
 }
 
+/// A flag that Ctrl-C raises (installed once per process).
+pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let raised = Arc::clone(&stop);
+    ctrlc::set_handler(move || raised.store(true, Ordering::SeqCst))
+        .context("cannot install the Ctrl-C handler")?;
+    Ok(stop)
+}
+
 /// `trainer train`.
 pub fn train(args: TrainArgs) -> anyhow::Result<()> {
+    let stop = stop_flag()?;
+    train_with(&args, &stop).map(|_| ())
+}
+
+/// Trains the runs `args` describes until done or `stop` is raised; returns whether every seed
+/// finished (false: stopped with checkpoints saved).
+pub fn train_with(args: &TrainArgs, stop: &AtomicBool) -> anyhow::Result<bool> {
     let mut s = config::load(args.config.as_deref())?;
-    apply_flags(&mut s, &args);
+    apply_flags(&mut s, args);
     s.validate()?;
     let scene = load_scene()?;
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = Arc::clone(&stop);
-        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
-            .context("cannot install the Ctrl-C handler")?;
-    }
     std::fs::create_dir_all(&s.out)
         .with_context(|| format!("cannot create {}", s.out.display()))?;
     write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
@@ -140,16 +150,16 @@ pub fn train(args: TrainArgs) -> anyhow::Result<()> {
         s.out.display()
     );
     for &seed in &s.seeds {
-        if !train_seed(&s, seed, &scene, &stop, &args)? {
+        if !train_seed(&s, seed, &scene, stop, args)? {
             println!("stopped: checkpoint saved; continue with the same command and --resume");
-            return Ok(());
+            return Ok(false);
         }
     }
     match plot_run(&s.out) {
         Ok(files) => files.iter().for_each(|f| println!("plot: {}", f.display())),
         Err(e) => eprintln!("no plot: {e:#}"),
     }
-    Ok(())
+    Ok(true)
 }
 
 /// Trains one seed; returns false if interrupted.
@@ -381,8 +391,8 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `trainer plot`: learning curves of every seed in a run folder.
-pub fn plot_run(run: &Path) -> anyhow::Result<Vec<PathBuf>> {
+/// The evaluation records of every seed in a run folder (seed-*/eval.jsonl) and its settings.
+pub fn read_run(run: &Path) -> anyhow::Result<(Vec<Vec<EvalRecord>>, Option<TrainSettings>)> {
     let mut seeds = Vec::new();
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(run)
         .with_context(|| format!("cannot read run folder {}", run.display()))?
@@ -406,6 +416,54 @@ pub fn plot_run(run: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let settings: Option<TrainSettings> = std::fs::read_to_string(run.join("settings.toml"))
         .ok()
         .and_then(|t| toml::from_str(&t).ok());
+    Ok((seeds, settings))
+}
+
+/// Return and success plots (PNG + SVG) of `conditions` as `dir`/`prefix`return.* and
+/// `dir`/`prefix`success.* (and `..._per_worker` too when `per_worker`).
+pub fn plot_conditions(
+    dir: &Path,
+    prefix: &str,
+    title: &str,
+    conditions: &[Condition],
+    per_worker: bool,
+) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let titled = |what: String| {
+        if title.is_empty() {
+            what
+        } else {
+            format!("{title}: {what}")
+        }
+    };
+    let name_of = |suffix: &str| dir.join(format!("{prefix}{suffix}"));
+    for (metric, name) in [
+        (Metric::MeanReturn, "return"),
+        (Metric::SuccessRate, "success"),
+    ] {
+        files.extend(plot(
+            &name_of(name),
+            &titled(format!("{name} against transitions")),
+            conditions,
+            metric,
+            XAxis::Total,
+        )?);
+        if per_worker {
+            files.extend(plot(
+                &name_of(&format!("{name}_per_worker")),
+                &titled(format!("{name} against transitions per worker")),
+                conditions,
+                metric,
+                XAxis::PerWorker,
+            )?);
+        }
+    }
+    Ok(files)
+}
+
+/// `trainer plot`: learning curves of every seed in a run folder.
+pub fn plot_run(run: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let (seeds, settings) = read_run(run)?;
     let (label, workers) = match &settings {
         Some(s) => (
             format!(
@@ -417,27 +475,5 @@ pub fn plot_run(run: &Path) -> anyhow::Result<Vec<PathBuf>> {
         None => (run.display().to_string(), 1),
     };
     let conditions = [Condition { label, seeds }];
-    let mut files = Vec::new();
-    for (metric, name) in [
-        (Metric::MeanReturn, "return"),
-        (Metric::SuccessRate, "success"),
-    ] {
-        files.extend(plot(
-            &run.join(name),
-            &format!("{name} against transitions"),
-            &conditions,
-            metric,
-            XAxis::Total,
-        )?);
-        if workers > 1 {
-            files.extend(plot(
-                &run.join(format!("{name}_per_worker")),
-                &format!("{name} against transitions per worker"),
-                &conditions,
-                metric,
-                XAxis::PerWorker,
-            )?);
-        }
-    }
-    Ok(files)
+    plot_conditions(run, "", "", &conditions, workers > 1)
 }
