@@ -223,7 +223,10 @@ mod tests {
             );
         }
         let svg = std::fs::read_to_string(tmp.join("figs/fig_return.svg")).unwrap();
-        assert!(svg.contains("alpha-run") && svg.contains("beta-run"), "legend labels");
+        assert!(
+            svg.contains("alpha-run") && svg.contains("beta-run"),
+            "legend labels"
+        );
         // A figure without runs, or naming a broken config, is refused with the culprit named.
         std::fs::write(&fig, "title = \"t\"\nout = \"x\"\nruns = []\n").unwrap();
         assert!(format!("{:#}", load(&fig).unwrap_err()).contains("at least one"));

@@ -186,9 +186,16 @@ fn train_seed(
         }
         let t = Trainer::load(&ckpt)
             .with_context(|| format!("cannot resume from {}", ckpt.display()))?;
-        if t.config() != &per_seed.run {
+        let saved: Option<TrainSettings> = std::fs::read_to_string(dir.join("settings.toml"))
+            .ok()
+            .and_then(|t| toml::from_str(&t).ok());
+        let same_env = saved
+            .as_ref()
+            .is_none_or(|o| (o.task, o.reward, o.start) == (s.task, s.reward, s.start));
+        if t.config() != &per_seed.run || !same_env {
             bail!(
-                "settings differ from the checkpoint's in {}; resume with the same settings",
+                "settings differ from the checkpoint's in {} (learner, task, reward or start \
+                 scheme); resume with the same settings",
                 dir.display()
             );
         }

@@ -1,0 +1,103 @@
+//! `trainer train` from the command line: a tiny run, refusal to overwrite, resume checks on the
+//! learner, task, reward and start scheme, and clear errors for bad flags (needs MuJoCo).
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn trainer(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .args(args)
+        .output()
+        .expect("run trainer")
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+#[test]
+fn tiny_run_then_resume_rules_and_bad_flags() {
+    let out = std::env::temp_dir().join(format!("dex-cli-train-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let out_s = out.to_str().unwrap();
+    let base = [
+        "train",
+        "--task",
+        "grasp",
+        "--start",
+        "along-demonstrations",
+        "--transitions",
+        "120",
+        "--hidden",
+        "16,16",
+        "--checkpoint-every",
+        "60",
+        "--final-eval-episodes",
+        "1",
+        "--quiet",
+        "--out",
+        out_s,
+    ];
+    let o = trainer(&base);
+    assert!(o.status.success(), "{}", text(&o));
+    let seed = Path::new(&out).join("seed-0");
+    for f in [
+        "checkpoint.bin",
+        "policy.dxpl",
+        "settings.toml",
+        "final_eval.json",
+    ] {
+        assert!(seed.join(f).exists(), "{f} missing:\n{}", text(&o));
+    }
+    let settings = std::fs::read_to_string(seed.join("settings.toml")).unwrap();
+    assert!(settings.contains("along-demonstrations"), "{settings}");
+
+    // Same command again: refuses to overwrite the run.
+    let o = trainer(&base);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("--resume"), "{}", text(&o));
+
+    // Resume with another start scheme: refused, the checkpoint is kept.
+    let before = std::fs::read(seed.join("checkpoint.bin")).unwrap();
+    let mut other: Vec<&str> = base.to_vec();
+    other[4] = "mixture";
+    other.push("--resume");
+    let o = trainer(&other);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("settings differ"), "{}", text(&o));
+    assert_eq!(std::fs::read(seed.join("checkpoint.bin")).unwrap(), before);
+
+    // Resume with the same settings and a larger budget: continues.
+    let mut more: Vec<&str> = base.to_vec();
+    more[6] = "180";
+    more.push("--resume");
+    let o = trainer(&more);
+    assert!(o.status.success(), "{}", text(&o));
+
+    // Bad flags: clap names the culprit and the accepted values.
+    let o = trainer(&["train", "--start", "teleport"]);
+    assert!(!o.status.success());
+    let t = text(&o);
+    assert!(
+        t.contains("teleport") && t.contains("along-demonstrations"),
+        "{t}"
+    );
+    let o = trainer(&[
+        "train",
+        "--start",
+        "mixture",
+        "--in-hand-probability",
+        "2",
+        "--out",
+        out_s,
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("in-hand probability"), "{}", text(&o));
+    let _ = std::fs::remove_dir_all(&out);
+}
