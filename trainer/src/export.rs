@@ -128,14 +128,14 @@ pub fn export_actor(
         }
         let outputs = u16::try_from(l.fan_out).map_err(|_| ExportError::TooLarge(layers.len()))?;
         body_layers
-            .push(LayerSpec {
+            .push(LayerSpec::f32(
                 outputs,
-                activation: match l.activation {
+                match l.activation {
                     Activation::Relu => dex_policy::Activation::Relu,
                     Activation::Tanh => dex_policy::Activation::Tanh,
                     Activation::Linear => dex_policy::Activation::Linear,
                 },
-            })
+            ))
             .map_err(|_| ExportError::TooLarge(layers.len()))?;
         // Both store weights input-major (row i: the weights leaving input i), then the biases.
         values.extend_from_slice(l.weights);
