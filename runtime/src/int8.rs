@@ -66,11 +66,7 @@ pub(crate) fn dense_int8(
     for (b, block) in w.chunks_exact(4 * groups).enumerate() {
         let mut acc = [0i32; 4];
         for (wg, xg) in block.chunks_exact(4).zip(xw.chunks_exact(2)) {
-            let (x01, x23) = (xg[0], xg[1]);
-            for (a, &wv) in acc.iter_mut().zip(wg) {
-                *a = smlad(sxtb16(wv), x01, *a);
-                *a = smlad(sxtb16_ror8(wv), x23, *a);
-            }
+            group(&mut acc, wg, xg[0], xg[1]);
         }
         for (r, &a) in acc.iter().enumerate() {
             let j = 4 * b + r;
@@ -78,6 +74,16 @@ pub(crate) fn dense_int8(
                 *o = a as f32 * (s * sx) + bj;
             }
         }
+    }
+}
+
+/// Adds one group of four inputs (`x01`, `x23`: two int16 each) times the four outputs' weight
+/// words `w` to the accumulators.
+#[inline(always)]
+fn group(acc: &mut [i32; 4], w: &[u32], x01: u32, x23: u32) {
+    for (a, &wv) in acc.iter_mut().zip(w) {
+        *a = smlad(sxtb16(wv), x01, *a);
+        *a = smlad(sxtb16_ror8(wv), x23, *a);
     }
 }
 
@@ -126,11 +132,12 @@ fn sxtb16_ror8(x: u32) -> u32 {
 fn smlad(a: u32, b: u32, acc: i32) -> i32 {
     #[cfg(all(feature = "dsp", target_arch = "arm"))]
     {
-        let r: i32;
-        // SAFETY: as in `sxtb16` (it may set the Q flag, which nothing reads).
+        let mut r = acc;
+        // SAFETY: as in `sxtb16` (it may set the Q flag, which nothing reads). The accumulator is
+        // read and written in the same register (fewer registers live in the kernel's loop).
         unsafe {
-            core::arch::asm!("smlad {0}, {1}, {2}, {3}", out(reg) r, in(reg) a, in(reg) b,
-                in(reg) acc, options(pure, nomem, nostack));
+            core::arch::asm!("smlad {0}, {1}, {2}, {0}", inout(reg) r, in(reg) a, in(reg) b,
+                options(pure, nomem, nostack));
         }
         r
     }
