@@ -47,6 +47,9 @@ struct Args {
     /// Worker threads of the closed-loop evaluation.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Keep the first `N` layers f32 (mixed precision) when quantising POLICY.
+    #[arg(long, default_value_t = 0)]
+    keep_f32: usize,
     /// Write the quantised policy here.
     #[arg(long)]
     write: Option<PathBuf>,
@@ -79,7 +82,12 @@ fn main() -> anyhow::Result<ExitCode> {
         .with_context(|| format!("cannot read {}", args.policy.display()))?;
     let int8_file = match &args.int8 {
         Some(p) => std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?,
-        None => quantise_policy_file(&f32_file, None)?,
+        None if args.keep_f32 == 0 => quantise_policy_file(&f32_file, None)?,
+        None => {
+            let aligned = aligned_copy(&f32_file);
+            let view = PolicyView::decode(aligned.as_bytes())?;
+            dex_policy::int8::quantise_policy(&view, |l| l >= args.keep_f32, None)?
+        }
     };
     if let Some(out) = &args.write {
         std::fs::write(out, &int8_file)
