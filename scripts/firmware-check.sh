@@ -15,8 +15,9 @@
 #   3. the same policy on netduinoplus2 (STM32F405 map: 1 MB flash, 128 KB RAM): equal to the host twin.
 #   4. a corrupted policy file: the fault state, reported, exit status non-zero, no hang.
 #   5. an undefined instruction at boot: the HardFault handler reports and exits non-zero.
-#   6. the int8 experiment (feature int8) on the default-size policy: equal to the host twin, action
-#      error against f32 at most 1% of each joint's range, instructions within budget.
+#   6. the default-size policy quantised to int8 (format version 2, `fw-host make-policy ... int8`) run by
+#      the runtime's int8 evaluator: equal to the host twin, action error against the f32 run at most 1%
+#      of each joint's range, instructions within budget. (Step 1 also checks the int8 golden.)
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -98,20 +99,16 @@ same_as_host() {
     local n
     n=$(grep -c '^[ACQ] ' "$1" || true)
     [ "$n" -gt 0 ] || die "$3: no action lines from QEMU"
-    diff <(grep -E '^(L|A|C|Q|E) ' "$2") <(grep -E '^(L|A|C|Q|E) ' "$1") >"$WORK/diff.txt" ||
+    diff <(grep -E '^(L|J|A|C) ' "$2") <(grep -E '^(L|J|A|C) ' "$1") >"$WORK/diff.txt" ||
         { head -20 "$WORK/diff.txt" >&2; die "$3: QEMU output differs from the host twin"; }
     echo "   $3: $n action lines bit-identical to the host twin"
 }
 
-# --- 1. golden policy ----------------------------------------------------------------------------
-GOLDEN="$ROOT/runtime/tests/golden"
-step "1/6 golden 44-64-64-9 policy on mps2-an386"
-build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
-expect_ok "$rc" "$WORK/golden.log" golden
-python3 - "$WORK/golden.log" "$GOLDEN/actions_64.f32" <<'EOF' || die "golden: actions differ from actions_64.f32"
+# check_golden LOG ACTIONS.f32 WHAT: every A line equals the golden actions bit for bit.
+check_golden() {
+    python3 - "$1" "$2" "$3" <<'EOF' || die "$3: actions differ from $(basename "$2")"
 import struct, sys
-log, golden = sys.argv[1], sys.argv[2]
+log, golden, what = sys.argv[1], sys.argv[2], sys.argv[3]
 def canon(bits):  # NaN payloads differ between x86 and Arm: compare all NaNs as one
     return 0x7FC00000 if (bits & 0x7F800000) == 0x7F800000 and bits & 0x007FFFFF else bits
 raw = open(golden, "rb").read()
@@ -128,10 +125,25 @@ for r in rows:
         print(f"step {s}: want {' '.join('%08x' % w for w in want[9 * s: 9 * s + 9])}", file=sys.stderr)
 if bad:
     sys.exit(f"{bad} of {len(rows)} steps differ")
-print(f"   golden: all {len(want)} action values bit-identical to actions_64.f32")
+print(f"   {what}: all {len(want)} action values bit-identical to {golden.split('/')[-1]}")
 EOF
+}
+
+# --- 1. golden policy ----------------------------------------------------------------------------
+GOLDEN="$ROOT/runtime/tests/golden"
+step "1/6 golden 44-64-64-9 policy on mps2-an386"
+build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
+expect_ok "$rc" "$WORK/golden.log" golden
+check_golden "$WORK/golden.log" "$GOLDEN/actions_64.f32" golden
 host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
 same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
+build_fw "$WORK/golden_int8.elf" "$GOLDEN/jaco_64_int8.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden_int8.elf" mps2-an386 "$WORK/golden_int8.log")
+expect_ok "$rc" "$WORK/golden_int8.log" "golden int8"
+check_golden "$WORK/golden_int8.log" "$GOLDEN/actions_64_int8.f32" "golden int8"
+host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
+same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
 
 # --- 2. default-size policy, budget and footprint -------------------------------------------------
 step "2/6 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
@@ -158,6 +170,7 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "mlp_step $mlp_max"
         echo "controller_step $ctrl_max"
         echo "int8_step BLESS_PENDING"
+        echo "int8_controller_step BLESS_PENDING"
     } >"$BUDGET"
     echo "   blessed $BUDGET"
 fi
@@ -226,22 +239,46 @@ rc=$(run_qemu "$WORK/hardfault.elf" mps2-an386 "$WORK/hardfault.log")
 grep -q '^FAULT hardfault' "$WORK/hardfault.log" || die "hardfault test: no FAULT report"
 echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
 
-# --- 6. int8 experiment -----------------------------------------------------------------------------
-step "6/6 int8 experiment (W8A16, per-output-channel scales) on the 44-256-256-9 policy"
-build_fw "$WORK/int8.elf" "$WORK/jaco_256.dxpl" mps2-an386 --features int8
+# --- 6. int8 policy file ---------------------------------------------------------------------------
+step "6/6 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
+"$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256_int8.dxpl" int8 2>/dev/null ||
+    die "make-policy int8 failed"
+build_fw "$WORK/int8.elf" "$WORK/jaco_256_int8.dxpl" mps2-an386
 rc=$(run_qemu "$WORK/int8.elf" mps2-an386 "$WORK/int8.log")
 expect_ok "$rc" "$WORK/int8.log" int8
-host_ref "$WORK/int8.host" "$WORK/jaco_256.dxpl" --features int8
+host_ref "$WORK/int8.host" "$WORK/jaco_256_int8.dxpl"
 same_as_host "$WORK/int8.log" "$WORK/int8.host" int8
-grep -E '^(H int8|E|I int8) ' "$WORK/int8.log" | sed 's/^/   /'
-awk '/^E int8 / { for (i = 4; i <= NF; i++) if ($i + 0 > 10.0) bad = bad " " $i }
-     END { if (bad != "") { print "   int8 error over 10 per mille of a joint range:" bad; exit 1 } }' \
-    "$WORK/int8.log" || die "int8: action error above 1% of a joint's range"
-int8_max=$(sed -n 's/^I int8 .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
-[ -n "$int8_max" ] || die "int8: no instruction count"
+grep -E '^(H|I|S peak) ' "$WORK/int8.log" | sed 's/^/   /'
+python3 - "$WORK/p256.log" "$WORK/int8.log" <<'EOF' || die "int8: action error above 1% of a joint's range"
+import struct, sys
+def rows(path, tag):
+    return {int(l.split()[1]): [struct.unpack("<f", struct.pack("<I", int(x, 16)))[0] for x in l.split()[2:]]
+            for l in open(path) if l.startswith(tag + " ")}
+ref, got, joints = rows(sys.argv[1], "A"), rows(sys.argv[2], "A"), rows(sys.argv[1], "J")
+worst = [0.0] * len(joints)
+for step, a in ref.items():
+    for k, (x, y) in enumerate(zip(a, got[step])):
+        lo, hi = joints[k]
+        worst[k] = max(worst[k], abs(x - y) / (hi - lo))
+print("   int8 max action error vs f32, % of joint range: " + " ".join("%.3f" % (100 * w) for w in worst)
+      + " (worst %.3f%%, %d steps)" % (100 * max(worst), len(ref)))
+sys.exit(1 if max(worst) > 0.01 else 0)
+EOF
+int8_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
+int8_ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
+[ -n "$int8_max" ] && [ -n "$int8_ctrl_max" ] || die "int8: no instruction count"
 if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
-    sed -i "s/^int8_step .*/int8_step $int8_max/" "$BUDGET"
+    sed -i "s/^int8_step .*/int8_step $int8_max/; s/^int8_controller_step .*/int8_controller_step $int8_ctrl_max/" "$BUDGET"
 fi
 check_budget int8_step "$int8_max"
+check_budget int8_controller_step "$int8_ctrl_max"
+int8_bytes=$(stat -c %s "$WORK/jaco_256_int8.dxpl")
+arm-none-eabi-size -A "$WORK/int8.elf" | awk -v pol="$int8_bytes" -v tr="$trace_bytes" '
+    $1 ~ /^\.(vector_table|text|rodata|data)$/ { s[$1] = $2 }
+    END {
+        printf "   int8 footprint: flash %d B = .vector_table %d + .text %d + .rodata %d (policy file %d, trace %d, other %d) + .data %d\n",
+            s[".vector_table"] + s[".text"] + s[".rodata"] + s[".data"], s[".vector_table"], s[".text"], s[".rodata"],
+            pol, tr, s[".rodata"] - pol - tr, s[".data"]
+    }'
 
 echo "firmware-check: OK"

@@ -9,14 +9,15 @@
 //!    clock and the observation as end-to-end-protected CAN frames; one `C` line per step with the
 //!    controller's action bits and the action frames it sent.
 //!
+//! The policy may be f32 (format version 1) or int8 (version 2, post-training quantised by the
+//! exporter): the runtime's evaluator picks the kernel from the file, so both paths run int8 files
+//! exactly as a product controller would.
+//!
 //! Everything here is target-independent and `no_std`: the board binary (`src/main.rs`) and the
 //! host twin (`host/`) call the same [`run`] with their own [`Platform`], so their `A` and `C`
 //! lines must be identical. The board adds instruction counts per step (`I` lines) and the stack
 //! high-water mark. This crate does not drive a CAN peripheral or a real clock.
 #![no_std]
-
-#[cfg(feature = "int8")]
-pub mod quant;
 
 use core::fmt;
 
@@ -86,9 +87,6 @@ pub enum Fault {
         /// The evaluator's error.
         error: EvalError,
     },
-    /// The int8 experiment failed (feature `int8`).
-    #[cfg(feature = "int8")]
-    Quant(quant::QuantError),
     /// The controller left operational while replaying the trace.
     Controller {
         /// Step of the trace.
@@ -110,8 +108,6 @@ impl fmt::Display for Fault {
                 "trace of {len} bytes is not a whole, non-zero number of {OBS_DIM}-value observations"
             ),
             Fault::Eval { step, error } => write!(f, "step {step}: evaluator: {error}"),
-            #[cfg(feature = "int8")]
-            Fault::Quant(e) => write!(f, "int8 experiment: {e:?}"),
             Fault::Controller { step, state, fault } => write!(
                 f,
                 "step {step}: controller in {state:?} with fault {fault:?} (code {})",
@@ -159,8 +155,6 @@ pub struct Summary {
     /// Instructions of one controller period: `poll` plus all observation frames, the last of
     /// which runs the evaluator and encodes the action frames.
     pub controller: Stats,
-    /// Instructions of one int8 evaluation (feature `int8`; nothing measured otherwise).
-    pub int8: Stats,
 }
 
 /// Hex words of an f32 slice, for report lines.
@@ -222,16 +216,24 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
     let view = PolicyView::decode(&POLICY.0).map_err(Fault::Policy)?;
     let body = view.body();
     p.line(format_args!(
-        "H board={BOARD} bytes={} version={} obs={} act={} values={} layers={}",
+        "H board={BOARD} bytes={} version={} obs={} act={} values={} layers={} weight_bytes={}",
         POLICY.0.len(),
         view.header().version,
         body.obs_dim(),
         body.act_dim(),
         view.values().len(),
         body.layers.len(),
+        view.weight_bytes(),
     ));
     for (i, l) in view.layers().enumerate() {
-        p.line(format_args!("L {i} {}x{}", l.inputs, l.outputs));
+        let dtype = match l.dtype {
+            dex_policy::LayerDtype::F32 => "f32",
+            dex_policy::LayerDtype::Int8 => "int8",
+        };
+        p.line(format_args!("L {i} {}x{} {dtype}", l.inputs, l.outputs));
+    }
+    for (i, j) in body.action.iter().enumerate() {
+        p.line(format_args!("J {i} {}", Bits(&[j.min, j.max])));
     }
     let steps = TRACE.0.len() / (OBS_DIM * 4);
     if steps == 0 || !TRACE.0.len().is_multiple_of(OBS_DIM * 4) {
@@ -329,81 +331,4 @@ fn replay_controller(
     }
     p.stack_checkpoint("controller-steps");
     Ok(stats)
-}
-
-/// Capacity of the int8 experiment's weight buffer (a 44-256-256-9 policy needs 79,104).
-#[cfg(feature = "int8")]
-pub const INT8_WEIGHTS: usize = 96 * 1024;
-
-/// Capacity of the int8 experiment's scale buffer (one per layer output).
-#[cfg(feature = "int8")]
-pub const INT8_SCALES: usize = 1024;
-
-/// Path 3 (feature `int8`): quantises the embedded policy into `weights`/`scales`, replays the
-/// trace through [`quant::QuantMlp`] (`Q` lines) and reports the largest action error against the
-/// f32 evaluator per joint, in per mille of the joint's command range (`E` line).
-#[cfg(feature = "int8")]
-#[inline(never)]
-pub fn run_int8(
-    p: &mut impl Platform,
-    weights: &mut [i8],
-    scales: &mut [f32],
-) -> Result<Stats, Fault> {
-    let view = PolicyView::decode(&POLICY.0).map_err(Fault::Policy)?;
-    let q = quant::quantize(&view, weights, scales).map_err(Fault::Quant)?;
-    p.line(format_args!(
-        "H int8 weights={} scales={} f32_weights_bytes={}",
-        q.weights.len(),
-        q.scales.len(),
-        q.weights.len() * 4
-    ));
-    let mut qmlp = quant::QuantMlp::<WIDTH>::new(&view, q).map_err(Fault::Quant)?;
-    let mut mlp = Mlp::<WIDTH>::new(&view).map_err(Fault::Policy)?;
-    let ((), overhead) = p.measure(|| ());
-    let overhead = overhead.unwrap_or(0);
-    let mut stats = Stats::default();
-    let mut worst = [0.0f32; ACT_DIM];
-    let steps = TRACE.0.len() / (OBS_DIM * 4);
-    for step in 0..steps {
-        let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
-        let mut action = [0.0f32; ACT_DIM];
-        let (result, n) = p.measure(|| qmlp.act(&obs, &mut action));
-        result.map_err(Fault::Quant)?;
-        stats.add(n.map(|v| v.saturating_sub(overhead)));
-        let mut reference = [0.0f32; ACT_DIM];
-        mlp.act(&obs, &mut reference)
-            .map_err(|error| Fault::Eval { step, error })?;
-        for ((w, (a, r)), joint) in worst
-            .iter_mut()
-            .zip(action.iter().zip(&reference))
-            .zip(&view.body().action)
-        {
-            *w = w.max((a - r).abs() / (joint.max - joint.min));
-        }
-        p.line(format_args!("Q {step} {}", Bits(&action)));
-    }
-    p.stack_checkpoint("int8-steps");
-    p.line(format_args!(
-        "E int8 max_error_permille_of_range {}",
-        Permille(&worst)
-    ));
-    Ok(stats)
-}
-
-/// Fractions as per mille with two decimals (integer formatting only).
-#[cfg(feature = "int8")]
-struct Permille<'a>(&'a [f32]);
-
-#[cfg(feature = "int8")]
-impl fmt::Display for Permille<'_> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        for (i, v) in self.0.iter().enumerate() {
-            let hundredths = (v * 100_000.0) as u32;
-            if i > 0 {
-                f.write_str(" ")?;
-            }
-            write!(f, "{}.{:02}", hundredths / 100, hundredths % 100)?;
-        }
-        Ok(())
-    }
 }

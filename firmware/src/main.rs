@@ -138,11 +138,7 @@ fn finish(board: &mut Board, result: Result<Summary, dex_firmware::Fault>) -> ! 
     let used = stack::high_water(board.painted).max(board.stack_peak);
     let status = match result {
         Ok(s) => {
-            for (name, st) in [
-                ("mlp", s.mlp),
-                ("controller", s.controller),
-                ("int8", s.int8),
-            ] {
+            for (name, st) in [("mlp", s.mlp), ("controller", s.controller)] {
                 if st.count > 0 {
                     board.line(format_args!(
                         "I {name} steps={} min={} max={} mean={}",
@@ -173,15 +169,6 @@ fn finish(board: &mut Board, result: Result<Summary, dex_firmware::Fault>) -> ! 
     }
 }
 
-/// RAM for the int8 experiment's quantised weights (flash in a product, where the exporter
-/// would write them).
-#[cfg(feature = "int8")]
-static mut INT8_WEIGHTS: [i8; dex_firmware::INT8_WEIGHTS] = [0; dex_firmware::INT8_WEIGHTS];
-
-/// RAM for the int8 experiment's per-output scales.
-#[cfg(feature = "int8")]
-static mut INT8_SCALES: [f32; dex_firmware::INT8_SCALES] = [0.0; dex_firmware::INT8_SCALES];
-
 #[entry]
 fn main() -> ! {
     let painted = stack::paint();
@@ -205,22 +192,7 @@ fn main() -> ! {
     if cfg!(feature = "hardfault-test") {
         cortex_m::asm::udf();
     }
-    #[allow(unused_mut)] // assigned only with the `int8` feature
-    let mut result = dex_firmware::run(&mut board);
-    #[cfg(feature = "int8")]
-    if let Ok(summary) = result.as_mut() {
-        // SAFETY: the only reference ever made to these buffers; `main` runs once.
-        let (weights, scales) = unsafe {
-            (
-                &mut *core::ptr::addr_of_mut!(INT8_WEIGHTS),
-                &mut *core::ptr::addr_of_mut!(INT8_SCALES),
-            )
-        };
-        match dex_firmware::run_int8(&mut board, weights, scales) {
-            Ok(stats) => summary.int8 = stats,
-            Err(fault) => result = Err(fault),
-        }
-    }
+    let result = dex_firmware::run(&mut board);
     finish(&mut board, result)
 }
 

@@ -57,6 +57,17 @@ pub struct ActionJoint<'a> {
     pub max: f32,
 }
 
+/// How a layer stores its weights (format version 2; every layer of a version 1 file is `F32`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum LayerDtype {
+    /// f32 weights, input-major, then f32 biases.
+    #[default]
+    F32,
+    /// int8 weights with one f32 scale per output channel (`w = q * scale[j]`), packed for
+    /// 4-output x 4-input blocks (see [`crate::int8`]), then the f32 scales, then f32 biases.
+    Int8,
+}
+
 /// One dense layer: `outputs` neurons followed by `activation`. Its input width is the previous
 /// layer's output width (the observation dimension for the first layer).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -65,6 +76,19 @@ pub struct LayerSpec {
     pub outputs: u16,
     /// Activation applied to the outputs.
     pub activation: Activation,
+    /// How the weights are stored (version 2 field; version 1 files decode as `F32`).
+    pub dtype: LayerDtype,
+}
+
+impl LayerSpec {
+    /// An f32 layer.
+    pub const fn f32(outputs: u16, activation: Activation) -> Self {
+        LayerSpec {
+            outputs,
+            activation,
+            dtype: LayerDtype::F32,
+        }
+    }
 }
 
 /// Where a policy came from.
@@ -115,18 +139,30 @@ impl Body<'_> {
         self.action.len()
     }
 
-    /// Number of f32 values the file must store: normalisation (mean and scale per observation
-    /// value) then, per layer, the weights (`inputs x outputs`) and biases (`outputs`).
+    /// Number of 4-byte words the file must store: normalisation (mean and scale per observation
+    /// value) then, per f32 layer, the weights (`inputs x outputs`) and biases (`outputs`); per
+    /// int8 layer the packed weights ([`crate::int8::packed_words`]), scales and biases
+    /// (`outputs` each). For an all-f32 network this is the number of f32 values.
     /// `None` on arithmetic overflow.
     pub fn stored_values(&self) -> Option<usize> {
         let mut inputs = self.obs_dim();
         let mut total = inputs.checked_mul(2)?;
         for layer in &self.layers {
             let outputs = usize::from(layer.outputs);
-            total = total.checked_add(inputs.checked_mul(outputs)?.checked_add(outputs)?)?;
+            let words = match layer.dtype {
+                LayerDtype::F32 => inputs.checked_mul(outputs)?.checked_add(outputs)?,
+                LayerDtype::Int8 => crate::int8::packed_words(inputs, outputs)?
+                    .checked_add(outputs.checked_mul(2)?)?,
+            };
+            total = total.checked_add(words)?;
             inputs = outputs;
         }
         Some(total)
+    }
+
+    /// Whether any layer stores int8 weights (such a file needs format version 2).
+    pub fn has_int8(&self) -> bool {
+        self.layers.iter().any(|l| l.dtype == LayerDtype::Int8)
     }
 
     /// Widest layer (or input).
@@ -135,5 +171,72 @@ impl Body<'_> {
             .iter()
             .map(|l| usize::from(l.outputs))
             .fold(self.obs_dim(), usize::max)
+    }
+}
+
+/// A layer as format version 1 writes it (no dtype field).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub(crate) struct LayerSpecV1 {
+    outputs: u16,
+    activation: Activation,
+}
+
+/// The body as format version 1 writes it: [`Body`] with [`LayerSpecV1`] layers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct BodyV1<'a> {
+    task: Task,
+    #[serde(borrow)]
+    observation: heapless::Vec<ObsField<'a>, MAX_OBS_FIELDS>,
+    obs_clip: f32,
+    #[serde(borrow)]
+    action: heapless::Vec<ActionJoint<'a>, MAX_ACTIONS>,
+    control_period_us: u32,
+    layers: heapless::Vec<LayerSpecV1, MAX_LAYERS>,
+    #[serde(borrow)]
+    provenance: Provenance<'a>,
+}
+
+impl<'a> From<BodyV1<'a>> for Body<'a> {
+    fn from(b: BodyV1<'a>) -> Self {
+        Body {
+            task: b.task,
+            observation: b.observation,
+            obs_clip: b.obs_clip,
+            action: b.action,
+            control_period_us: b.control_period_us,
+            layers: b
+                .layers
+                .iter()
+                .map(|l| LayerSpec::f32(l.outputs, l.activation))
+                .collect(),
+            provenance: b.provenance,
+        }
+    }
+}
+
+impl<'a> BodyV1<'a> {
+    /// The version 1 form of `body`; `None` when a layer is not f32 (version 1 cannot carry it).
+    pub(crate) fn from_body(body: &Body<'a>) -> Option<Self> {
+        let mut layers = heapless::Vec::new();
+        for l in &body.layers {
+            if l.dtype != LayerDtype::F32 {
+                return None;
+            }
+            layers
+                .push(LayerSpecV1 {
+                    outputs: l.outputs,
+                    activation: l.activation,
+                })
+                .ok()?;
+        }
+        Some(BodyV1 {
+            task: body.task,
+            observation: body.observation.clone(),
+            obs_clip: body.obs_clip,
+            action: body.action.clone(),
+            control_period_us: body.control_period_us,
+            layers,
+            provenance: body.provenance,
+        })
     }
 }

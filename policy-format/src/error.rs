@@ -128,6 +128,28 @@ pub enum FormatError {
         /// Index into the stored values.
         index: usize,
     },
+    /// An int8 layer's per-output scale is zero or negative (version 2).
+    InvalidScale {
+        /// Index of the layer.
+        layer: usize,
+        /// Output channel of the scale.
+        output: usize,
+    },
+    /// An int8 layer's packed weights have a non-zero byte where the padding to whole 4 x 4
+    /// blocks must be zero (version 2).
+    NonZeroWeightPadding {
+        /// Index of the layer.
+        layer: usize,
+    },
+    /// An int8 layer has more inputs than an exact int32 accumulation allows (version 2).
+    QuantisedLayerTooWide {
+        /// Index of the layer.
+        layer: usize,
+        /// Its input width, padded to a multiple of 4.
+        inputs: usize,
+        /// The limit ([`crate::int8::MAX_INPUTS`]).
+        max: usize,
+    },
     /// The policy needs more than the runtime's compile-time capacity.
     ExceedsCapacity {
         /// What is too large.
@@ -219,6 +241,18 @@ impl fmt::Display for FormatError {
             FormatError::NonFiniteWeight { index } => {
                 write!(f, "stored value {index} is not finite")
             }
+            FormatError::InvalidScale { layer, output } => write!(
+                f,
+                "int8 layer {layer}: scale of output {output} is not positive"
+            ),
+            FormatError::NonZeroWeightPadding { layer } => write!(
+                f,
+                "int8 layer {layer}: padding of the packed weights is not zero"
+            ),
+            FormatError::QuantisedLayerTooWide { layer, inputs, max } => write!(
+                f,
+                "int8 layer {layer} has {inputs} (padded) inputs; exact int32 accumulation allows {max}"
+            ),
             FormatError::ExceedsCapacity { what, value, max } => write!(
                 f,
                 "policy exceeds the runtime's capacity: {what} {value} > {max}"

@@ -6,8 +6,12 @@ use crate::error::FormatError;
 
 /// First four bytes of every policy file.
 pub const MAGIC: [u8; 4] = *b"DXPL";
-/// Format version this crate writes and the newest it reads.
-pub const FORMAT_VERSION: u16 = 1;
+/// Newest format version this crate reads and writes (version 2 adds int8 layers).
+pub const FORMAT_VERSION: u16 = 2;
+/// Oldest format version this crate reads. The encoder writes the oldest version that can carry a
+/// policy: version 1 for all-f32 networks (byte for byte what a version 1 encoder wrote), version 2
+/// when a layer is int8.
+pub const MIN_FORMAT_VERSION: u16 = 1;
 /// Size of the fixed header in bytes.
 pub const HEADER_LEN: usize = 24;
 /// Byte offset of the CRC-32 field inside the header.
@@ -23,13 +27,14 @@ const LAYOUT_CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISCSI);
 pub struct Header {
     /// Format version of the file.
     pub version: u16,
-    /// Reserved flags (zero in version 1).
+    /// Reserved flags (zero in versions 1 and 2).
     pub flags: u16,
     /// Hash of the observation and action layout (see [`layout_hash`]).
     pub layout_hash: u32,
     /// Length of the postcard body in bytes.
     pub body_len: u32,
-    /// Number of stored little-endian f32 values.
+    /// Number of stored 4-byte words: little-endian f32 values (and, in version 2, packed int8
+    /// weights, four to a word).
     pub value_count: u32,
     /// CRC-32 over the header (without this field) and everything after it.
     pub crc: u32,
@@ -61,7 +66,7 @@ impl Header {
             value_count: u32_at(16),
             crc: u32_at(CRC_OFFSET),
         };
-        if header.version != FORMAT_VERSION {
+        if !(MIN_FORMAT_VERSION..=FORMAT_VERSION).contains(&header.version) {
             return Err(FormatError::UnsupportedVersion {
                 found: header.version,
                 supported: FORMAT_VERSION,

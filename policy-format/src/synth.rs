@@ -73,17 +73,14 @@ pub fn synth_parts<'a>(spec: &SynthSpec<'a>) -> Result<(Body<'a>, Vec<f32>), For
     let mut layers = heapless::Vec::new();
     for &outputs in spec.hidden {
         layers
-            .push(LayerSpec {
-                outputs,
-                activation: spec.hidden_activation,
-            })
+            .push(LayerSpec::f32(outputs, spec.hidden_activation))
             .map_err(|_| FormatError::MalformedBody)?;
     }
     layers
-        .push(LayerSpec {
-            outputs: spec.action.len() as u16,
-            activation: spec.output_activation,
-        })
+        .push(LayerSpec::f32(
+            spec.action.len() as u16,
+            spec.output_activation,
+        ))
         .map_err(|_| FormatError::MalformedBody)?;
     let body = Body {
         task: spec.task,
@@ -138,4 +135,12 @@ pub fn golden_small_spec() -> SynthSpec<'static> {
         output_activation: Activation::Tanh,
         seed: 7,
     }
+}
+
+/// The committed int8 golden file `tests/golden/small_int8.dxpl` (format version 2): the policy of
+/// [`golden_small_spec`] with both layers quantised by [`crate::int8::quantise_policy`].
+pub fn golden_small_int8() -> Result<Vec<u8>, FormatError> {
+    let f32_file = synth_policy(&golden_small_spec())?;
+    let view = crate::view::PolicyView::decode(&f32_file)?;
+    crate::int8::quantise_policy(&view, |_| true, None)
 }

@@ -1,8 +1,9 @@
 //! Decoding and validating a policy file into a borrowed view.
 
-use crate::body::{Body, MAX_NAME_LEN};
+use crate::body::{Body, BodyV1, LayerDtype, MAX_NAME_LEN};
 use crate::error::{CapacityItem, FormatError};
 use crate::header::{HEADER_LEN, Header, file_crc, layout_hash, values_offset};
+use crate::int8;
 use crate::weights::Values;
 
 /// Compile-time limits of an evaluator, checked before a policy is accepted.
@@ -18,16 +19,20 @@ pub struct Capacity {
     pub max_layers: usize,
 }
 
-/// Where one layer's numbers sit among the stored values.
+/// Where one layer's numbers sit among the stored values (indices count 4-byte words).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LayerLayout {
     /// Input width.
     pub inputs: usize,
     /// Output width.
     pub outputs: usize,
-    /// Index of the first weight; weights are input-major: `w[i * outputs + j]` links input `i`
-    /// to output `j`.
+    /// How the weights are stored.
+    pub dtype: LayerDtype,
+    /// Index of the first weight. f32: input-major, `w[i * outputs + j]` links input `i` to
+    /// output `j`. int8: the first word of the packed weights ([`crate::int8`]).
     pub weights: usize,
+    /// Index of the first per-output scale (int8 layers only).
+    pub scales: Option<usize>,
     /// Index of the first bias.
     pub biases: usize,
 }
@@ -78,9 +83,17 @@ impl<'a> PolicyView<'a> {
         if file[body_end..start].iter().any(|&b| b != 0) {
             return Err(FormatError::NonZeroPadding);
         }
-        let body: Body<'a> = match postcard::take_from_bytes(&file[HEADER_LEN..body_end]) {
-            Ok((body, [])) => body,
-            _ => return Err(FormatError::MalformedBody),
+        let body_bytes = &file[HEADER_LEN..body_end];
+        let body: Body<'a> = if header.version == 1 {
+            match postcard::take_from_bytes::<BodyV1<'a>>(body_bytes) {
+                Ok((body, [])) => body.into(),
+                _ => return Err(FormatError::MalformedBody),
+            }
+        } else {
+            match postcard::take_from_bytes(body_bytes) {
+                Ok((body, [])) => body,
+                _ => return Err(FormatError::MalformedBody),
+            }
         };
         let values = Values::new(&file[start..]);
         validate(&body, &values)?;
@@ -127,6 +140,27 @@ impl<'a> PolicyView<'a> {
     /// Layout of every layer, input to output.
     pub fn layers(&self) -> impl Iterator<Item = LayerLayout> + '_ {
         layer_layouts(&self.body)
+    }
+
+    /// The packed int8 weights of layer `index` ([`crate::int8`] layout); `None` for an f32 layer
+    /// or an index past the last layer.
+    pub fn int8_weights(&self, index: usize) -> Option<&'a [i8]> {
+        let l = self.layer(index)?;
+        if l.dtype != LayerDtype::Int8 {
+            return None;
+        }
+        let len = int8::packed_bytes(l.inputs, l.outputs)?;
+        self.values.int8(l.weights, len)
+    }
+
+    /// Bytes of stored weights (f32 and int8), without biases, scales and normalisation.
+    pub fn weight_bytes(&self) -> usize {
+        self.layers()
+            .map(|l| match l.dtype {
+                LayerDtype::F32 => l.inputs * l.outputs * 4,
+                LayerDtype::Int8 => int8::packed_bytes(l.inputs, l.outputs).unwrap_or(0),
+            })
+            .sum()
     }
 
     /// Checks the policy against an evaluator's compile-time capacity.
@@ -194,13 +228,29 @@ fn layer_layouts<'b>(body: &'b Body<'_>) -> impl Iterator<Item = LayerLayout> + 
     let mut next = 2 * obs;
     body.layers.iter().map(move |l| {
         let outputs = usize::from(l.outputs);
-        let layout = LayerLayout {
-            inputs,
-            outputs,
-            weights: next,
-            biases: next + inputs * outputs,
+        let layout = match l.dtype {
+            LayerDtype::F32 => LayerLayout {
+                inputs,
+                outputs,
+                dtype: l.dtype,
+                weights: next,
+                scales: None,
+                biases: next.saturating_add(inputs.saturating_mul(outputs)),
+            },
+            LayerDtype::Int8 => {
+                let scales =
+                    next.saturating_add(int8::packed_words(inputs, outputs).unwrap_or(usize::MAX));
+                LayerLayout {
+                    inputs,
+                    outputs,
+                    dtype: l.dtype,
+                    weights: next,
+                    scales: Some(scales),
+                    biases: scales.saturating_add(outputs),
+                }
+            }
         };
-        next = layout.biases + outputs;
+        next = layout.biases.saturating_add(outputs);
         inputs = outputs;
         layout
     })
@@ -259,13 +309,59 @@ pub(crate) fn validate(body: &Body<'_>, values: &Values<'_>) -> Result<(), Forma
             stored: values.len(),
         });
     }
-    if let Some(index) = values.iter().position(|v| !v.is_finite()) {
-        return Err(FormatError::NonFiniteWeight { index });
+    // Every f32 word must be finite; packed int8 words are skipped.
+    let mut int8_words = layer_layouts(body)
+        .filter(|l| l.dtype == LayerDtype::Int8)
+        .map(|l| l.weights..l.scales.unwrap_or(l.weights))
+        .peekable();
+    let mut index = 0;
+    while index < values.len() {
+        if let Some(skip) = int8_words.next_if(|skip| skip.start == index) {
+            index = skip.end;
+            continue;
+        }
+        if !values.get(index).is_some_and(f32::is_finite) {
+            return Err(FormatError::NonFiniteWeight { index });
+        }
+        index += 1;
     }
     let obs = body.obs_dim();
     for index in obs..2 * obs {
         if !values.get(index).is_some_and(|s| s > 0.0) {
             return Err(FormatError::InvalidNormalisation { index: index - obs });
+        }
+    }
+    for (layer, l) in layer_layouts(body).enumerate() {
+        if l.dtype != LayerDtype::Int8 {
+            continue;
+        }
+        let inputs = int8::padded(l.inputs);
+        if inputs > int8::MAX_INPUTS {
+            return Err(FormatError::QuantisedLayerTooWide {
+                layer,
+                inputs,
+                max: int8::MAX_INPUTS,
+            });
+        }
+        let scales = l.scales.unwrap_or(l.biases);
+        if let Some(output) =
+            (0..l.outputs).find(|&j| !values.get(scales + j).is_some_and(|s| s > 0.0))
+        {
+            return Err(FormatError::InvalidScale { layer, output });
+        }
+        let len = int8::packed_bytes(l.inputs, l.outputs).unwrap_or(usize::MAX);
+        let packed = values
+            .int8(l.weights, len)
+            .ok_or(FormatError::WeightCountMismatch {
+                expected,
+                stored: values.len(),
+            })?;
+        let (in_pad, out_pad) = (int8::padded(l.inputs), int8::padded(l.outputs));
+        let zero = |i: usize, j: usize| packed.get(int8::byte_index(l.inputs, i, j)) == Some(&0);
+        let padding_ok = (l.outputs..out_pad).all(|j| (0..in_pad).all(|i| zero(i, j)))
+            && (l.inputs..in_pad).all(|i| (0..l.outputs).all(|j| zero(i, j)));
+        if !padding_ok {
+            return Err(FormatError::NonZeroWeightPadding { layer });
         }
     }
     Ok(())

@@ -2,7 +2,8 @@
 
 use crate::error::FormatError;
 
-/// The stored values of a policy file: normalisation, then weights and biases layer by layer.
+/// The stored values of a policy file: normalisation, then weights (f32, or packed int8 in
+/// version 2), int8 scales and biases layer by layer, as 4-byte little-endian words.
 /// Borrowed from the file bytes; nothing is copied until asked.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Values<'a> {
@@ -32,7 +33,19 @@ impl<'a> Values<'a> {
         Some(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
 
-    /// All values in order.
+    /// `len` bytes of packed int8 weights starting at word `word`; `None` past the end.
+    pub fn int8(&self, word: usize, len: usize) -> Option<&'a [i8]> {
+        let start = word.checked_mul(4)?;
+        let bytes = self.bytes.get(start..start.checked_add(len)?)?;
+        Some(bytemuck::cast_slice(bytes))
+    }
+
+    /// The raw little-endian bytes of all stored words.
+    pub fn bytes(&self) -> &'a [u8] {
+        self.bytes
+    }
+
+    /// All values in order (packed int8 words of version 2 files read as f32 bit patterns).
     pub fn iter(&self) -> impl Iterator<Item = f32> + 'a {
         self.bytes
             .chunks_exact(4)

@@ -64,7 +64,7 @@ fn flips_map_to_the_specific_errors() {
         flip(4, 1),
         FormatError::UnsupportedVersion {
             found: 3,
-            supported: 1
+            supported: 2
         }
     );
     assert_eq!(flip(6, 0), FormatError::UnknownFlags { flags: 1 });

@@ -1,6 +1,7 @@
 //! Criterion benchmarks: the forward pass of the 48-256-256-9 MLP alone, and one whole control
 //! step (15 observation frames decoded and checked, 44-256-256-9 forward pass, 3 action frames
-//! encoded). `cargo bench -p dex-runtime --bench control_step`
+//! encoded), and the int8 forward pass of the cell's 44-256-256-9 network.
+//! `cargo bench -p dex-runtime --bench control_step`
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)] // benchmark harness
 
 use criterion::{Criterion, black_box, criterion_group, criterion_main};
@@ -8,7 +9,9 @@ use dex_policy::PolicyView;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
 use dex_runtime::interface::ACT_DIM;
-use dex_runtime::testkit::{aligned_copy, jaco_policy, mlp_48_256_256_9, observation_trace};
+use dex_runtime::testkit::{
+    aligned_copy, jaco_policy, jaco_policy_int8, mlp_48_256_256_9, observation_trace,
+};
 use dex_runtime::{Controller, ControllerConfig, Mlp, MockClock};
 
 fn forward(c: &mut Criterion) {
@@ -23,6 +26,31 @@ fn forward(c: &mut Criterion) {
             black_box(&action);
         })
     });
+}
+
+fn forward_int8(c: &mut Criterion) {
+    for (name, file) in [
+        (
+            "forward_f32_44_256_256_9",
+            jaco_policy(&[256, 256], 1).unwrap(),
+        ),
+        (
+            "forward_int8_44_256_256_9",
+            jaco_policy_int8(&[256, 256], 1).unwrap(),
+        ),
+    ] {
+        let file = aligned_copy(&file);
+        let view = PolicyView::decode(file.as_bytes()).unwrap();
+        let mut mlp = Mlp::<256>::new(&view).unwrap();
+        let obs = observation_trace(1, 3)[0];
+        let mut action = [0.0f32; ACT_DIM];
+        c.bench_function(name, |b| {
+            b.iter(|| {
+                mlp.act(black_box(&obs), &mut action).unwrap();
+                black_box(&action);
+            })
+        });
+    }
 }
 
 fn control_step(c: &mut Criterion) {
@@ -53,5 +81,5 @@ fn control_step(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, forward, control_step);
+criterion_group!(benches, forward, forward_int8, control_step);
 criterion_main!(benches);

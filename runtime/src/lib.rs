@@ -1,7 +1,8 @@
 //! `dex-runtime`: the controller that runs an exported policy at 20 Hz behind CAN frames.
 //!
 //! - [`mlp::Mlp`] evaluates a policy file's network with compile-time capacity, borrowing the
-//!   weights from the file, bit-identically on every target.
+//!   weights from the file, bit-identically on every target; f32 and int8 layers (format version
+//!   2) alike, chosen by the file.
 //! - [`controller::Controller`] wraps it in a CANopen-style state machine with a watchdog: it takes
 //!   frames ([`embedded_can::Frame`]) and time ([`clock::Clock`]) and returns frames to send.
 //! - [`can`] holds the frame type, AUTOSAR-E2E-profile-11-style protection and the cell's messages;
@@ -22,6 +23,7 @@ pub mod controller;
 #[cfg(feature = "std")]
 pub mod dbc;
 pub mod error;
+mod int8;
 pub mod interface;
 pub mod mlp;
 pub mod observation;

@@ -1,18 +1,38 @@
 //! The policy evaluator: observation normalisation, a dense MLP and action scaling, with capacity
 //! fixed at compile time and the weights borrowed from the policy file (flash on a controller).
 //!
-//! Determinism: every output is `bias + w[0]*x[0] + w[1]*x[1] + ...` in that order ("axpy" order:
-//! for each input, its weight row is added to all outputs). Rust never fuses a multiply and an add
-//! unless `mul_add` is called, and `tanh` comes from the pure-Rust `libm`, so results are
-//! bit-identical on every target. The loop over outputs vectorises without changing any output's
-//! summation order.
+//! The file decides, layer by layer, which kernel runs ([`dex_policy::LayerDtype`]):
+//!
+//! - f32 layers: every output is `bias + w[0]*x[0] + w[1]*x[1] + ...` in that order. Rust never
+//!   fuses a multiply and an add unless `mul_add` is called, and `tanh` comes from the pure-Rust
+//!   `libm`, so results are bit-identical on every target.
+//! - int8 layers ("W8A16", packed as in [`dex_policy::int8`]): the layer's inputs are quantised per call to int16
+//!   with one scale `s_x = max|x| / 32767`, each output is an exact int32 sum of int8 x int16
+//!   products (exact, so its order is free), then `y[j] = acc as f32 * (scale[j] * s_x) + bias[j]`
+//!   in that order of f32 operations. Bit-identical on every target as well.
 
-use dex_policy::{Activation, Capacity, FormatError, MAX_ACTIONS, MAX_LAYERS, PolicyView};
+use dex_policy::{
+    Activation, Capacity, CapacityItem, FormatError, LayerDtype, MAX_ACTIONS, MAX_LAYERS,
+    PolicyView, int8::padded,
+};
 use heapless::Vec;
 
 use crate::error::EvalError;
+use crate::int8::{dense_int8, quantise_inputs};
 
-/// One dense layer, as offsets into the stored values.
+/// How a layer's weights are stored, with what the kind needs beyond weights and biases.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    /// f32 weights, input-major.
+    F32,
+    /// Packed int8 weights with per-output scales starting at this value index.
+    Int8 {
+        /// Index of the first scale.
+        scales: usize,
+    },
+}
+
+/// One dense layer, as offsets into the stored values (4-byte words).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Layer {
     inputs: usize,
@@ -20,7 +40,13 @@ struct Layer {
     weights: usize,
     biases: usize,
     activation: Activation,
+    kind: Kind,
 }
+
+/// int16 activations of an int8 layer, word-aligned so that pairs can be read as one `u32`.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(4))]
+struct Int16Buffer<const WIDTH: usize>([i16; WIDTH]);
 
 /// How one network output becomes a joint command: `clamp(y * scale, min, max)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -30,13 +56,17 @@ struct JointMap {
     max: f32,
 }
 
-/// A loaded policy with its scratch buffers; `WIDTH` is the widest layer (or input) it accepts.
+/// A loaded policy with its scratch buffers; `WIDTH` is the widest layer (or input) it accepts
+/// (for int8 layers the input width rounded up to a multiple of 4).
 ///
-/// Holds two `[f32; WIDTH]` activations buffers and borrows the weights: a 48-256-256-9 policy
-/// needs 2 kB of RAM here while its 323 kB of weights stay in the file (flash).
+/// Holds two `[f32; WIDTH]` activations buffers and one `[i16; WIDTH]` buffer for the quantised
+/// inputs of int8 layers, and borrows the weights: a 48-256-256-9 policy needs 2.5 kB of RAM here
+/// while its weights (323 kB f32, 81 kB int8) stay in the file (flash).
 #[derive(Debug, Clone)]
 pub struct Mlp<'a, const WIDTH: usize> {
     values: &'a [f32],
+    words: &'a [u32],
+    xq: Int16Buffer<WIDTH>,
     layers: Vec<Layer, MAX_LAYERS>,
     joints: Vec<JointMap, MAX_ACTIONS>,
     obs_dim: usize,
@@ -66,6 +96,20 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
         let body = view.body();
         let mut layers = Vec::new();
         for (l, spec) in view.layers().zip(body.layers.iter()) {
+            let kind = match (l.dtype, l.scales) {
+                (LayerDtype::Int8, Some(scales)) => {
+                    if padded(l.inputs) > WIDTH {
+                        return Err(FormatError::ExceedsCapacity {
+                            what: CapacityItem::Width,
+                            value: padded(l.inputs),
+                            max: WIDTH,
+                        });
+                    }
+                    Kind::Int8 { scales }
+                }
+                (LayerDtype::Int8, None) => return Err(FormatError::MalformedBody),
+                (LayerDtype::F32, _) => Kind::F32,
+            };
             layers
                 .push(Layer {
                     inputs: l.inputs,
@@ -73,9 +117,10 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
                     weights: l.weights,
                     biases: l.biases,
                     activation: spec.activation,
+                    kind,
                 })
                 .map_err(|_| FormatError::ExceedsCapacity {
-                    what: dex_policy::CapacityItem::Layers,
+                    what: CapacityItem::Layers,
                     value: body.layers.len(),
                     max: MAX_LAYERS,
                 })?;
@@ -89,13 +134,15 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
                     max: j.max,
                 })
                 .map_err(|_| FormatError::ExceedsCapacity {
-                    what: dex_policy::CapacityItem::Action,
+                    what: CapacityItem::Action,
                     value: body.action.len(),
                     max: MAX_ACTIONS,
                 })?;
         }
         Ok(Mlp {
             values,
+            words: bytemuck::cast_slice(values),
+            xq: Int16Buffer([0; WIDTH]),
             layers,
             joints,
             obs_dim: body.obs_dim(),
@@ -113,6 +160,14 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
     /// Number of joint commands the policy produces.
     pub fn act_dim(&self) -> usize {
         self.joints.len()
+    }
+
+    /// Number of layers evaluated with int8 weights.
+    pub fn int8_layers(&self) -> usize {
+        self.layers
+            .iter()
+            .filter(|l| matches!(l.kind, Kind::Int8 { .. }))
+            .count()
     }
 
     /// Evaluates the policy: normalises and clips `obs`, runs the network and writes one clamped
@@ -143,7 +198,6 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
         }
         // Ping-pong between the two buffers: even layers read `front`, odd layers read `back`.
         for (l, layer) in self.layers.iter().enumerate() {
-            let w = &self.values[layer.weights..layer.biases];
             let b = &self.values[layer.biases..layer.biases + layer.outputs];
             let (src, dst) = if l % 2 == 0 {
                 (&self.front, &mut self.back)
@@ -151,7 +205,22 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
                 (&self.back, &mut self.front)
             };
             let dst = &mut dst[..layer.outputs];
-            dense(&src[..layer.inputs], w, b, dst);
+            match layer.kind {
+                Kind::F32 => {
+                    let w = &self.values[layer.weights..layer.biases];
+                    dense(&src[..layer.inputs], w, b, dst);
+                }
+                Kind::Int8 { scales } => {
+                    let in_pad = padded(layer.inputs);
+                    let xq = &mut self.xq.0[..in_pad];
+                    let sx = quantise_inputs(&src[..layer.inputs], xq);
+                    // Never fails: the buffer is 4-aligned and `in_pad` is a multiple of 4.
+                    let xw: &[u32] = bytemuck::try_cast_slice(xq).unwrap_or(&[]);
+                    let w = &self.words[layer.weights..scales];
+                    let s = &self.values[scales..layer.biases];
+                    dense_int8(xw, w, s, b, sx, dst);
+                }
+            }
             activate(layer.activation, dst);
         }
         let result = if self.layers.len() % 2 == 1 {

@@ -29,6 +29,13 @@ pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
     })
 }
 
+/// [`jaco_policy`] after post-training quantisation of every layer to int8 (format version 2).
+pub fn jaco_policy_int8(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
+    let f32_file = jaco_policy(hidden, seed)?;
+    let view = dex_policy::PolicyView::decode(&f32_file)?;
+    dex_policy::int8::quantise_policy(&view, |_| true, None)
+}
+
 /// The benchmark network of the runtime issue: 48 inputs (one field "obs"), two hidden ReLU layers
 /// of 256, 9 tanh outputs (unit scale and limits), seed 1. Not the cell's layout: for speed only.
 pub fn mlp_48_256_256_9() -> Result<Vec<u8>, FormatError> {

@@ -1,5 +1,6 @@
 //! Proves the control path never touches the heap: a counting global allocator watches 10,000
-//! control cycles (poll, 15 observation frames, one 44-256-256-9 evaluation, action frames).
+//! control cycles (poll, 15 observation frames, one 44-256-256-9 evaluation, action frames), for an
+//! f32 policy and for the same policy quantised to int8.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -9,7 +10,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use dex_policy::PolicyView;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
-use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
+use dex_runtime::testkit::{aligned_copy, jaco_policy, jaco_policy_int8, observation_trace};
 use dex_runtime::{Controller, ControllerConfig, MockClock, State};
 
 struct Counting;
@@ -46,7 +47,16 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn ten_thousand_control_cycles_allocate_nothing() {
-    let file = aligned_copy(&jaco_policy(&[256, 256], 21).unwrap());
+    control_cycles_allocate_nothing(&jaco_policy(&[256, 256], 21).unwrap());
+}
+
+#[test]
+fn ten_thousand_int8_control_cycles_allocate_nothing() {
+    control_cycles_allocate_nothing(&jaco_policy_int8(&[256, 256], 21).unwrap());
+}
+
+fn control_cycles_allocate_nothing(policy: &[u8]) {
+    let file = aligned_copy(policy);
     let view = PolicyView::decode(file.as_bytes()).unwrap();
     let trace = observation_trace(64, 8);
     let clock = MockClock::new(0);

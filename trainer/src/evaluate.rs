@@ -1,5 +1,11 @@
 //! Success rate of an exported policy file, run through the `dex-runtime` evaluator: what is measured
 //! is exactly what a controller runs (optionally with the CAN bus's quantisation on both sides).
+//! f32 (format version 1) and int8 (version 2) files alike: the file picks the kernel.
+//!
+//! Also the int8-versus-f32 comparison: held-out observations recorded from episodes of the
+//! environment ([`heldout_observations`]) and the largest action difference per joint between two
+//! policy files on them ([`action_error`]); `cargo run --release -p dex-trainer --example
+//! int8_compare` runs the whole comparison.
 
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -192,6 +198,70 @@ pub fn evaluate_policy_file(
         mean_return: total / f64::from(n.max(1)),
         ci95: wilson_interval(successes, n),
     })
+}
+
+/// Start seed of the held-out observation episodes: far from the evaluation seeds (`trainer eval`
+/// uses 1,000,000) and never drawn by training, whose episode seeds come from the learner's RNG.
+pub const HELDOUT_SEED: u64 = 7_000_000;
+
+/// Every observation of `episodes` episodes driven by the policy `file` through the runtime (no CAN
+/// quantisation), episode `i` starting from [`episode_seed`]`(seed, i)`.
+pub fn heldout_observations(
+    file: &[u8],
+    scene: &Scene,
+    env: EnvConfig,
+    episodes: u32,
+    seed: u64,
+) -> Result<Vec<[f32; OBS_DIM]>, EvalError> {
+    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let view = PolicyView::decode(aligned.as_bytes())?;
+    let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
+    let mut env = JacoEnv::new(scene, env);
+    let mut out = Vec::new();
+    for i in 0..episodes {
+        let mut obs = env.reset(episode_seed(seed, u64::from(i)))?;
+        loop {
+            out.push(obs);
+            let mut physical = [0.0f32; ACT_DIM];
+            mlp.act(&obs, &mut physical)?;
+            let step = env.step(&physical_to_env_action(&physical))?;
+            obs = step.observation;
+            if step.done {
+                break;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Largest `|a(x) - b(x)| / (max - min)` per joint over `observations`: the action difference of
+/// two policy files (e.g. int8 against f32) as a fraction of each joint's command range.
+pub fn action_error(
+    a: &[u8],
+    b: &[u8],
+    observations: &[[f32; OBS_DIM]],
+) -> Result<[f64; ACT_DIM], EvalError> {
+    let (fa, fb) = (
+        dex_runtime::testkit::aligned_copy(a),
+        dex_runtime::testkit::aligned_copy(b),
+    );
+    let (va, vb) = (
+        PolicyView::decode(fa.as_bytes())?,
+        PolicyView::decode(fb.as_bytes())?,
+    );
+    let mut ma = Mlp::<EVAL_WIDTH>::new(&va)?;
+    let mut mb = Mlp::<EVAL_WIDTH>::new(&vb)?;
+    let mut worst = [0.0f64; ACT_DIM];
+    for obs in observations {
+        let (mut ya, mut yb) = ([0.0f32; ACT_DIM], [0.0f32; ACT_DIM]);
+        ma.act(obs, &mut ya)?;
+        mb.act(obs, &mut yb)?;
+        for (k, w) in worst.iter_mut().enumerate() {
+            let range = f64::from(ACTION_JOINTS[k].max) - f64::from(ACTION_JOINTS[k].min);
+            *w = w.max((f64::from(ya[k]) - f64::from(yb[k])).abs() / range);
+        }
+    }
+    Ok(worst)
 }
 
 #[cfg(test)]

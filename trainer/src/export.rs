@@ -1,4 +1,5 @@
-//! Writing a trained actor as a `dex-policy` file, the format the controller runs.
+//! Writing a trained actor as a `dex-policy` file, the format the controller runs, in f32 or, after
+//! post-training quantisation, with int8 weights (format version 2).
 
 use dex_policy::{ActionJoint, Body, LayerSpec, ObsField, Provenance, encode_to_vec};
 use dex_runtime::interface::{ACTION_JOINTS, CONTROL_PERIOD_US, OBSERVATION_FIELDS};
@@ -54,6 +55,59 @@ pub struct ExportInfo {
     pub success_rate: Option<f32>,
     /// Episodes behind `success_rate`.
     pub eval_episodes: u32,
+}
+
+/// Precision of an exported policy's weights.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// f32 weights (a format version 1 file).
+    #[default]
+    F32,
+    /// Post-training quantisation of every layer: int8 weights with symmetric per-output-channel
+    /// scales (`scale[j] = max_i |w[i][j]| / 127`), f32 biases; evaluated by the runtime with int16
+    /// activations and exact int32 accumulation (a format version 2 file).
+    Int8,
+}
+
+/// Post-training quantisation of an exported f32 policy file: every layer becomes int8 (see
+/// [`Precision::Int8`]); layouts, normalisation and the action map are kept. The provenance is kept
+/// except the success rate, which belonged to the f32 weights: it is replaced by `evaluation`
+/// (success rate, episodes) of the int8 file itself, or cleared (`None`, 0 episodes).
+pub fn quantise_policy_file(
+    f32_file: &[u8],
+    evaluation: Option<(f32, u32)>,
+) -> Result<Vec<u8>, ExportError> {
+    let aligned = dex_runtime::testkit::aligned_copy(f32_file);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
+    let provenance = Provenance {
+        success_rate: evaluation.map(|e| e.0),
+        eval_episodes: evaluation.map_or(0, |e| e.1),
+        ..view.body().provenance
+    };
+    Ok(dex_policy::int8::quantise_policy(
+        &view,
+        |_| true,
+        Some(provenance),
+    )?)
+}
+
+/// [`export_actor`] at the given precision.
+pub fn export_actor_with(
+    net: &Mlp,
+    params: &[f32],
+    normalisation: Option<ObsNormalisation<'_>>,
+    info: &ExportInfo,
+    precision: Precision,
+) -> Result<Vec<u8>, ExportError> {
+    let file = export_actor(net, params, normalisation, info)?;
+    match precision {
+        Precision::F32 => Ok(file),
+        Precision::Int8 => {
+            let aligned = dex_runtime::testkit::aligned_copy(&file);
+            let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
+            Ok(dex_policy::int8::quantise_policy(&view, |_| true, None)?)
+        }
+    }
 }
 
 /// Observation clip of exported policies. The learner does not clip normalised observations, so the
@@ -128,14 +182,14 @@ pub fn export_actor(
         }
         let outputs = u16::try_from(l.fan_out).map_err(|_| ExportError::TooLarge(layers.len()))?;
         body_layers
-            .push(LayerSpec {
+            .push(LayerSpec::f32(
                 outputs,
-                activation: match l.activation {
+                match l.activation {
                     Activation::Relu => dex_policy::Activation::Relu,
                     Activation::Tanh => dex_policy::Activation::Tanh,
                     Activation::Linear => dex_policy::Activation::Linear,
                 },
-            })
+            ))
             .map_err(|_| ExportError::TooLarge(layers.len()))?;
         // Both store weights input-major (row i: the weights leaving input i), then the biases.
         values.extend_from_slice(l.weights);

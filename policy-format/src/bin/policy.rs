@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use dex_policy::{Activation, PolicyView};
+use dex_policy::{Activation, LayerDtype, PolicyView};
 
 #[derive(Parser)]
 #[command(
@@ -73,16 +73,33 @@ fn inspect(bytes: &[u8]) -> anyhow::Result<()> {
     }
     let mut chain = b.obs_dim().to_string();
     for l in &b.layers {
-        chain.push_str(&format!(" -> {} {}", l.outputs, activation(l.activation)));
+        let dtype = match l.dtype {
+            LayerDtype::F32 => "",
+            LayerDtype::Int8 => " int8",
+        };
+        chain.push_str(&format!(
+            " -> {} {}{dtype}",
+            l.outputs,
+            activation(l.activation)
+        ));
     }
     println!("network         {chain}");
     let values = view.values().len();
     let normalisation = 2 * b.obs_dim();
-    println!(
-        "stored values   {values} f32 ({} bytes): {} parameters + {normalisation} normalisation",
-        values * 4,
-        values - normalisation
-    );
+    if b.has_int8() {
+        println!(
+            "stored words    {values} ({} bytes): {normalisation} normalisation, weights {} bytes, the rest f32 scales and biases",
+            values * 4,
+            view.weight_bytes()
+        );
+    } else {
+        println!(
+            "stored values   {values} f32 ({} bytes): {} parameters + {normalisation} normalisation",
+            values * 4,
+            values - normalisation
+        );
+    }
+    println!("weight bytes    {}", view.weight_bytes());
     let p = &b.provenance;
     println!("trainer         {}", p.trainer_version);
     println!("seed            {}", p.seed);

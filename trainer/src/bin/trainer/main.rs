@@ -6,7 +6,7 @@
 //! trainer eval POLICY.dxpl [--episodes 100] [--seed 0]
 //! trainer plot RUN_DIR
 //! trainer figure experiments/figures/FIGURE.toml [--transitions N] [--seeds 0,1] [--plot-only]
-//! trainer export RUN_DIR [--seed 0] [--out FILE.dxpl]
+//! trainer export RUN_DIR [--seed 0] [--out FILE.dxpl] [--int8]
 //! ```
 
 mod config;
@@ -160,9 +160,59 @@ struct ExportArgs {
     /// Seed whose checkpoint to export.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Output file (default RUN/seed-S/policy.dxpl).
+    /// Output file (default RUN/seed-S/policy.dxpl, with --int8 RUN/seed-S/policy-int8.dxpl).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Also write an int8 policy (post-training quantisation: per-output-channel symmetric weight
+    /// scales, int32 accumulation in the runtime; format version 2), evaluated like the f32 one.
+    /// The f32 policy still goes to RUN/seed-S/policy.dxpl.
+    #[arg(long)]
+    int8: bool,
+}
+
+/// `trainer export --int8`: quantises the exported f32 file, evaluates the int8 file through the
+/// runtime (same episodes and start seeds as the f32 export's evaluation) and writes it with its own
+/// success rate.
+fn export_int8(
+    f32_path: &std::path::Path,
+    out: &std::path::Path,
+    settings: &config::TrainSettings,
+) -> anyhow::Result<()> {
+    use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
+    use dex_trainer::export::quantise_policy_file;
+    let f32_file =
+        std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
+    let draft = quantise_policy_file(&f32_file, None)?;
+    let scene = dex_trainer::env::Scene::load()
+        .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
+    let eval_settings = EvalSettings {
+        env: settings.reward.env_config(settings.task.task()),
+        episodes: settings.final_eval_episodes,
+        seed: 1_000_000,
+        threads: settings.eval_threads,
+        can_quantisation: true,
+    };
+    let e = evaluate_policy_file(&draft, &scene, &eval_settings, &|| {})?;
+    let file = quantise_policy_file(&f32_file, Some((e.success_rate() as f32, e.episodes)))?;
+    std::fs::write(out, &file).with_context(|| format!("cannot write {}", out.display()))?;
+    let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
+        let aligned = dex_runtime::testkit::aligned_copy(bytes);
+        Ok(dex_policy::PolicyView::decode(aligned.as_bytes())?.weight_bytes())
+    };
+    println!(
+        "wrote {} (int8: {} weight bytes, f32 {}; {} bytes in all) - runtime evaluation success {}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
+        out.display(),
+        weight_bytes(&file)?,
+        weight_bytes(&f32_file)?,
+        file.len(),
+        e.successes,
+        e.episodes,
+        e.success_rate() * 100.0,
+        e.ci95.0 * 100.0,
+        e.ci95.1 * 100.0,
+        e.mean_return
+    );
+    Ok(())
 }
 
 fn main() -> anyhow::Result<()> {
@@ -188,15 +238,26 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Export(args) => {
             let dir = args.run.join(format!("seed-{}", args.seed));
-            let out = args.out.unwrap_or_else(|| dir.join("policy.dxpl"));
+            let f32_out = dir.join("policy.dxpl");
+            let out = match (&args.out, args.int8) {
+                (Some(out), _) => out.clone(),
+                (None, false) => f32_out.clone(),
+                (None, true) => dir.join("policy-int8.dxpl"),
+            };
             let settings: config::TrainSettings = toml::from_str(
                 &std::fs::read_to_string(dir.join("settings.toml"))
                     .with_context(|| format!("{} is not a run folder", dir.display()))?,
             )
             .context("settings.toml")?;
-            train::export_checkpoint(&dir, &settings, args.seed, &out)?;
-            println!("wrote {}", out.display());
-            Ok(())
+            if args.int8 {
+                train::export_checkpoint(&dir, &settings, args.seed, &f32_out)?;
+                println!("wrote {}", f32_out.display());
+                export_int8(&f32_out, &out, &settings)
+            } else {
+                train::export_checkpoint(&dir, &settings, args.seed, &out)?;
+                println!("wrote {}", out.display());
+                Ok(())
+            }
         }
     }
 }

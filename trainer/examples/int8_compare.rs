@@ -1,0 +1,170 @@
+//! int8 against f32 for one trained policy: weight bytes, action error on held-out observations
+//! and closed-loop success on the same start seeds, everything through the `dex-runtime` evaluator.
+//!
+//! ```text
+//! cargo run --release -p dex-trainer --example int8_compare -- POLICY.dxpl \
+//!     [--int8 POLICY-int8.dxpl] [--episodes 100] [--heldout-episodes 20] [--threads 2] [--write OUT]
+//! ```
+//!
+//! - int8 file: `--int8 FILE`, or the post-training quantisation of POLICY (what
+//!   `trainer export --int8` writes; `--write OUT` saves it).
+//! - held-out observations: every observation of `--heldout-episodes` episodes driven by the f32
+//!   policy and as many driven by the int8 policy, from start seeds `HELDOUT_SEED` (7,000,000; no
+//!   training or evaluation uses them); the error is `max |a_int8 - a_f32| / (max - min)` per joint.
+//! - closed loop: `trainer eval`'s episodes (start seed 1,000,000, CAN quantisation on) for both.
+//!
+//! Exit status 0 when both goals hold (error <= 1% of every joint's range, success within 2
+//! points), 1 otherwise.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::Parser;
+use dex_policy::PolicyView;
+use dex_runtime::interface::ACTION_JOINTS;
+use dex_runtime::testkit::aligned_copy;
+use dex_trainer::env::{EnvConfig, Scene, Task};
+use dex_trainer::evaluate::{
+    EvalSettings, HELDOUT_SEED, PolicyEval, action_error, evaluate_policy_file,
+    heldout_observations,
+};
+use dex_trainer::export::quantise_policy_file;
+
+#[derive(Parser)]
+struct Args {
+    /// The f32 policy file.
+    policy: PathBuf,
+    /// An int8 policy file to compare (default: quantise POLICY).
+    #[arg(long)]
+    int8: Option<PathBuf>,
+    /// Closed-loop episodes per policy.
+    #[arg(long, default_value_t = 100)]
+    episodes: u32,
+    /// Held-out episodes per policy whose observations are compared.
+    #[arg(long, default_value_t = 20)]
+    heldout_episodes: u32,
+    /// Worker threads of the closed-loop evaluation.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Keep the first `N` layers f32 (mixed precision) when quantising POLICY.
+    #[arg(long, default_value_t = 0)]
+    keep_f32: usize,
+    /// Write the quantised policy here.
+    #[arg(long)]
+    write: Option<PathBuf>,
+}
+
+fn task_of(view: &PolicyView<'_>) -> Task {
+    match view.body().task {
+        dex_policy::Task::Reach => Task::Reach,
+        dex_policy::Task::Grasp => Task::Grasp,
+        dex_policy::Task::StackInHand => Task::StackInHand,
+        dex_policy::Task::Stack => Task::Stack,
+    }
+}
+
+fn describe(e: &PolicyEval) -> String {
+    format!(
+        "{}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
+        e.successes,
+        e.episodes,
+        e.success_rate() * 100.0,
+        e.ci95.0 * 100.0,
+        e.ci95.1 * 100.0,
+        e.mean_return
+    )
+}
+
+fn main() -> anyhow::Result<ExitCode> {
+    let args = Args::parse();
+    let f32_file = std::fs::read(&args.policy)
+        .with_context(|| format!("cannot read {}", args.policy.display()))?;
+    let int8_file = match &args.int8 {
+        Some(p) => std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?,
+        None if args.keep_f32 == 0 => quantise_policy_file(&f32_file, None)?,
+        None => {
+            let aligned = aligned_copy(&f32_file);
+            let view = PolicyView::decode(aligned.as_bytes())?;
+            dex_policy::int8::quantise_policy(&view, |l| l >= args.keep_f32, None)?
+        }
+    };
+    if let Some(out) = &args.write {
+        std::fs::write(out, &int8_file)
+            .with_context(|| format!("cannot write {}", out.display()))?;
+        println!("wrote {}", out.display());
+    }
+    let (fa, fb) = (aligned_copy(&f32_file), aligned_copy(&int8_file));
+    let (va, vb) = (
+        PolicyView::decode(fa.as_bytes())?,
+        PolicyView::decode(fb.as_bytes())?,
+    );
+    let task = task_of(&va);
+    println!(
+        "policy {} ({:?}), format versions f32 {} / int8 {}",
+        args.policy.display(),
+        task,
+        va.header().version,
+        vb.header().version
+    );
+    println!(
+        "weight bytes: f32 {} / int8 {} ({:.2}x smaller); file bytes f32 {} / int8 {}",
+        va.weight_bytes(),
+        vb.weight_bytes(),
+        va.weight_bytes() as f64 / vb.weight_bytes().max(1) as f64,
+        f32_file.len(),
+        int8_file.len()
+    );
+
+    let scene = Scene::load().context("cannot build the MuJoCo scene (scripts/setup-mujoco.sh)")?;
+    let env = EnvConfig::new(task);
+    let mut observations =
+        heldout_observations(&f32_file, &scene, env, args.heldout_episodes, HELDOUT_SEED)?;
+    observations.extend(heldout_observations(
+        &int8_file,
+        &scene,
+        env,
+        args.heldout_episodes,
+        HELDOUT_SEED,
+    )?);
+    let error = action_error(&f32_file, &int8_file, &observations)?;
+    let worst = error.iter().copied().fold(0.0f64, f64::max);
+    println!(
+        "held-out observations: {} ({} episodes per policy from seed {HELDOUT_SEED})",
+        observations.len(),
+        args.heldout_episodes
+    );
+    println!("max |a_int8 - a_f32| per joint, % of the joint's command range:");
+    for (j, e) in ACTION_JOINTS.iter().zip(&error) {
+        println!("  {:<24} {:.3}%", j.name, e * 100.0);
+    }
+    println!(
+        "  worst                    {:.3}% (goal <= 1%)",
+        worst * 100.0
+    );
+
+    let settings = EvalSettings {
+        env,
+        episodes: args.episodes,
+        seed: 1_000_000,
+        threads: args.threads,
+        can_quantisation: true,
+    };
+    let ea = evaluate_policy_file(&f32_file, &scene, &settings, &|| {})?;
+    let eb = evaluate_policy_file(&int8_file, &scene, &settings, &|| {})?;
+    let diff = (eb.success_rate() - ea.success_rate()) * 100.0;
+    println!(
+        "closed loop, {} episodes from seed 1000000 (CAN quantisation on):",
+        args.episodes
+    );
+    println!("  f32  {}", describe(&ea));
+    println!("  int8 {}", describe(&eb));
+    println!("  difference {diff:+.1} points (goal within 2)");
+    let ok = worst <= 0.01 && diff.abs() <= 2.0;
+    println!("goals {}", if ok { "met" } else { "MISSED" });
+    Ok(if ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
