@@ -7,7 +7,9 @@
 //! ```
 //!
 //! - int8 file: `--int8 FILE`, or the post-training quantisation of POLICY (what
-//!   `trainer export --int8` writes; `--write OUT` saves it).
+//!   `trainer export --int8` writes; `--write OUT` saves it): equalised first on the observations of
+//!   `CALIBRATION_EPISODES` f32 episodes from `CALIBRATION_SEED` (8,000,000), unless
+//!   `--no-equalise` (plain per-output-channel quantisation, the exporter before equalisation).
 //! - held-out observations: every observation of `--heldout-episodes` episodes driven by the f32
 //!   policy and as many driven by the int8 policy, from start seeds `HELDOUT_SEED` (7,000,000; no
 //!   training or evaluation uses them); the error is `max |a_int8 - a_f32| / (max - min)` per joint.
@@ -26,10 +28,12 @@ use dex_runtime::interface::ACTION_JOINTS;
 use dex_runtime::testkit::aligned_copy;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
-    EvalSettings, HELDOUT_SEED, PolicyEval, action_error, evaluate_policy_file,
+    EvalSettings, HELDOUT_SEED, PolicyEval, action_error, action_errors, evaluate_policy_file,
     heldout_observations,
 };
-use dex_trainer::export::quantise_policy_file;
+use dex_trainer::export::{
+    CALIBRATION_EPISODES, CALIBRATION_SEED, equalise_policy_file, quantise_policy_file,
+};
 
 #[derive(Parser)]
 struct Args {
@@ -50,6 +54,9 @@ struct Args {
     /// Keep the first `N` layers f32 (mixed precision) when quantising POLICY.
     #[arg(long, default_value_t = 0)]
     keep_f32: usize,
+    /// Quantise POLICY without equalisation (input folding, cross-layer equalisation).
+    #[arg(long)]
+    no_equalise: bool,
     /// Write the quantised policy here.
     #[arg(long)]
     write: Option<PathBuf>,
@@ -80,13 +87,39 @@ fn main() -> anyhow::Result<ExitCode> {
     let args = Args::parse();
     let f32_file = std::fs::read(&args.policy)
         .with_context(|| format!("cannot read {}", args.policy.display()))?;
+    let scene = Scene::load().context("cannot build the MuJoCo scene (scripts/setup-mujoco.sh)")?;
+    let env = {
+        let aligned = aligned_copy(&f32_file);
+        EnvConfig::new(task_of(&PolicyView::decode(aligned.as_bytes())?))
+    };
     let int8_file = match &args.int8 {
         Some(p) => std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?,
-        None if args.keep_f32 == 0 => quantise_policy_file(&f32_file, None)?,
         None => {
-            let aligned = aligned_copy(&f32_file);
-            let view = PolicyView::decode(aligned.as_bytes())?;
-            dex_policy::int8::quantise_policy(&view, |l| l >= args.keep_f32, None)?
+            let source = if args.no_equalise {
+                f32_file.clone()
+            } else {
+                let calibration = heldout_observations(
+                    &f32_file,
+                    &scene,
+                    env,
+                    CALIBRATION_EPISODES,
+                    CALIBRATION_SEED,
+                )?;
+                let eq = equalise_policy_file(&f32_file, &calibration)?;
+                println!(
+                    "equalised on {} calibration observations ({CALIBRATION_EPISODES} episodes from seed {CALIBRATION_SEED}); f32 function change {:.2e} of a joint's range",
+                    calibration.len(),
+                    eq.max_f32_change
+                );
+                eq.file
+            };
+            if args.keep_f32 == 0 {
+                quantise_policy_file(&source, None)?
+            } else {
+                let aligned = aligned_copy(&source);
+                let view = PolicyView::decode(aligned.as_bytes())?;
+                dex_policy::int8::quantise_policy(&view, |l| l >= args.keep_f32, None)?
+            }
         }
     };
     if let Some(out) = &args.write {
@@ -116,8 +149,6 @@ fn main() -> anyhow::Result<ExitCode> {
         int8_file.len()
     );
 
-    let scene = Scene::load().context("cannot build the MuJoCo scene (scripts/setup-mujoco.sh)")?;
-    let env = EnvConfig::new(task);
     let mut observations =
         heldout_observations(&f32_file, &scene, env, args.heldout_episodes, HELDOUT_SEED)?;
     observations.extend(heldout_observations(
@@ -141,6 +172,16 @@ fn main() -> anyhow::Result<ExitCode> {
     println!(
         "  worst                    {:.3}% (goal <= 1%)",
         worst * 100.0
+    );
+    let mut all = action_errors(&f32_file, &int8_file, &observations)?;
+    all.sort_by(f64::total_cmp);
+    let pct = |q: f64| all[((all.len() - 1) as f64 * q) as usize] * 100.0;
+    println!(
+        "  all (observation, joint) pairs: median {:.3}%, p90 {:.3}%, p99 {:.3}%; share over 1%: {:.1}%",
+        pct(0.5),
+        pct(0.9),
+        pct(0.99),
+        all.iter().filter(|&&e| e > 0.01).count() as f64 * 100.0 / all.len().max(1) as f64
     );
 
     let settings = EvalSettings {

@@ -234,6 +234,36 @@ pub fn heldout_observations(
     Ok(out)
 }
 
+/// Every `|a(x) - b(x)| / (max - min)` over `observations` and joints (observation-major): the
+/// distribution behind [`action_error`]'s maxima.
+pub fn action_errors(
+    a: &[u8],
+    b: &[u8],
+    observations: &[[f32; OBS_DIM]],
+) -> Result<Vec<f64>, EvalError> {
+    let (fa, fb) = (
+        dex_runtime::testkit::aligned_copy(a),
+        dex_runtime::testkit::aligned_copy(b),
+    );
+    let (va, vb) = (
+        PolicyView::decode(fa.as_bytes())?,
+        PolicyView::decode(fb.as_bytes())?,
+    );
+    let mut ma = Mlp::<EVAL_WIDTH>::new(&va)?;
+    let mut mb = Mlp::<EVAL_WIDTH>::new(&vb)?;
+    let mut out = Vec::with_capacity(observations.len() * ACT_DIM);
+    for obs in observations {
+        let (mut ya, mut yb) = ([0.0f32; ACT_DIM], [0.0f32; ACT_DIM]);
+        ma.act(obs, &mut ya)?;
+        mb.act(obs, &mut yb)?;
+        for (k, joint) in ACTION_JOINTS.iter().enumerate() {
+            let range = f64::from(joint.max) - f64::from(joint.min);
+            out.push((f64::from(ya[k]) - f64::from(yb[k])).abs() / range);
+        }
+    }
+    Ok(out)
+}
+
 /// Largest `|a(x) - b(x)| / (max - min)` per joint over `observations`: the action difference of
 /// two policy files (e.g. int8 against f32) as a fraction of each joint's command range.
 pub fn action_error(

@@ -40,6 +40,18 @@ pub enum ExportError {
     /// More layers or wider layers than the format can describe.
     #[error("the actor has {0} layers or a layer wider than 65535; the format allows 8")]
     TooLarge(usize),
+    /// Equalisation needs an f32 policy file; this layer is already int8.
+    #[error("layer {layer} of the policy file is already int8; equalisation needs f32 weights")]
+    NotF32 {
+        /// Layer index.
+        layer: usize,
+    },
+    /// Comparing the equalised file with the original through the runtime failed.
+    #[error("evaluation: {0}")]
+    Evaluation(#[from] crate::evaluate::EvalError),
+    /// Equalisation needs at least one calibration observation of the policy's width.
+    #[error("no calibration observations of width {0}")]
+    NoCalibration(usize),
 }
 
 /// What the exporter writes into the file's provenance.
@@ -89,6 +101,172 @@ pub fn quantise_policy_file(
         |_| true,
         Some(provenance),
     )?)
+}
+
+/// Start seed of the calibration episodes of the int8 exporter ([`equalise_policy_file`]): episode
+/// `i` starts from `episode_seed(CALIBRATION_SEED, i)`, a range used by neither training, `trainer
+/// eval` (1,000,000) nor the held-out error measurement (`evaluate::HELDOUT_SEED`, 7,000,000).
+pub const CALIBRATION_SEED: u64 = 8_000_000;
+
+/// Episodes whose observations calibrate the int8 exporter.
+pub const CALIBRATION_EPISODES: u32 = 20;
+
+/// Smallest per-input range [`equalise_policy_file`] folds into the first layer, in normalised
+/// units: inputs that barely vary in calibration are not blown up, and with the file's clip of
+/// [`EXPORT_OBS_CLIP`] the folded normalisation still clips only values beyond
+/// `1e4 * 1e-2 = 100` normalised units from the calibration centre (raw observations stay below 30).
+pub const MIN_FOLDED_RANGE: f64 = 1.0e-2;
+
+/// An f32 policy file rewritten for quantisation, with the same function.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Equalised {
+    /// The rewritten f32 file (same layout, format version 1).
+    pub file: Vec<u8>,
+    /// Largest `|a_new - a_old| / (max - min)` over the calibration observations and joints,
+    /// through the runtime: the f32 function change caused by rounding the new weights to f32.
+    pub max_f32_change: f64,
+}
+
+/// Rewrites an f32 policy so that post-training quantisation loses less, without changing its f32
+/// function (up to f32 rounding, reported in [`Equalised::max_f32_change`]):
+///
+/// 1. Input folding: from the normalised calibration inputs `z_i` (range `[lo_i, hi_i]`), centre
+///    `m_i = (lo_i + hi_i) / 2` and half-range `r_i = max((hi_i - lo_i) / 2, MIN_FOLDED_RANGE)`
+///    go into the file's normalisation (`mean += scale * m_i`, `scale *= r_i`), so every input the
+///    first layer sees spans about [-1, 1]; the first layer's weight row `i` is multiplied by `r_i`
+///    and its biases gain `sum_i w[i][j] * m_i`. Nearly constant inputs no longer carry a large
+///    constant term through quantised weights, and rows of inputs that barely move no longer set
+///    the per-output weight scales.
+/// 2. Cross-layer equalisation (Nagel et al. 2019, "Data-Free Quantization"): between a ReLU layer
+///    and the next, output `j` (weight column and bias) is divided by `c_j` and the next layer's
+///    weight row `j` multiplied by it, `c_j = sqrt(r1_j / r2_j)` with `r1_j`, `r2_j` the largest
+///    weight magnitudes of that column and row (ReLU is positively homogeneous, so the function
+///    is the same).
+///
+/// The arithmetic is done in f64 and rounded once to f32. `calibration` holds raw observations
+/// (what the controller receives), e.g. `CALIBRATION_EPISODES` episodes from `CALIBRATION_SEED`.
+pub fn equalise_policy_file(
+    f32_file: &[u8],
+    calibration: &[[f32; dex_runtime::interface::OBS_DIM]],
+) -> Result<Equalised, ExportError> {
+    let aligned = dex_runtime::testkit::aligned_copy(f32_file);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
+    let values = view.values().as_slice()?;
+    let n = view.body().obs_dim();
+    if calibration.is_empty() || n != dex_runtime::interface::OBS_DIM {
+        return Err(ExportError::NoCalibration(n));
+    }
+    let get = |start: usize, len: usize| -> Result<Vec<f64>, ExportError> {
+        values
+            .get(start..start + len)
+            .map(|v| v.iter().map(|&x| f64::from(x)).collect())
+            .ok_or(ExportError::Format(dex_policy::FormatError::MalformedBody))
+    };
+    let mut mean = get(0, n)?;
+    let mut scale = get(n, n)?;
+    struct Dense {
+        inputs: usize,
+        outputs: usize,
+        w: Vec<f64>,
+        b: Vec<f64>,
+        relu: bool,
+    }
+    let mut layers = Vec::new();
+    for (index, (l, spec)) in view.layers().zip(view.body().layers.iter()).enumerate() {
+        if l.dtype != dex_policy::LayerDtype::F32 {
+            return Err(ExportError::NotF32 { layer: index });
+        }
+        layers.push(Dense {
+            inputs: l.inputs,
+            outputs: l.outputs,
+            w: get(l.weights, l.inputs * l.outputs)?,
+            b: get(l.biases, l.outputs)?,
+            relu: spec.activation == dex_policy::Activation::Relu,
+        });
+    }
+    // 1. Input folding.
+    if let Some(first) = layers.first_mut() {
+        for i in 0..n.min(first.inputs) {
+            let (lo, hi) = calibration
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(lo, hi), o| {
+                    let z = (f64::from(o[i]) - mean[i]) / scale[i];
+                    (lo.min(z), hi.max(z))
+                });
+            let m = 0.5 * (lo + hi);
+            let r = (0.5 * (hi - lo)).max(MIN_FOLDED_RANGE);
+            mean[i] += scale[i] * m;
+            scale[i] *= r;
+            for j in 0..first.outputs {
+                let w = &mut first.w[i * first.outputs + j];
+                first.b[j] += *w * m;
+                *w *= r;
+            }
+        }
+    }
+    // 2. Cross-layer equalisation across ReLUs.
+    for k in 1..layers.len() {
+        let (head, tail) = layers.split_at_mut(k);
+        let (Some(a), Some(b)) = (head.last_mut(), tail.first_mut()) else {
+            continue;
+        };
+        if !a.relu || a.outputs != b.inputs {
+            continue;
+        }
+        for j in 0..a.outputs {
+            let r1 = (0..a.inputs).fold(0.0f64, |m, i| m.max(a.w[i * a.outputs + j].abs()));
+            let r2 = (0..b.outputs).fold(0.0f64, |m, t| m.max(b.w[j * b.outputs + t].abs()));
+            if r1 > 0.0 && r2 > 0.0 {
+                let c = (r1 / r2).sqrt();
+                for i in 0..a.inputs {
+                    a.w[i * a.outputs + j] /= c;
+                }
+                a.b[j] /= c;
+                for t in 0..b.outputs {
+                    b.w[j * b.outputs + t] *= c;
+                }
+            }
+        }
+    }
+    let mut out: Vec<f32> = Vec::with_capacity(values.len());
+    out.extend(mean.iter().map(|&x| x as f32));
+    out.extend(scale.iter().map(|&x| x as f32));
+    for l in &layers {
+        out.extend(l.w.iter().map(|&x| x as f32));
+        out.extend(l.b.iter().map(|&x| x as f32));
+    }
+    let file = encode_to_vec(view.body(), &out)?;
+    let max_f32_change = evaluate_change(f32_file, &file, calibration)?;
+    Ok(Equalised {
+        file,
+        max_f32_change,
+    })
+}
+
+/// Largest action difference of two f32-or-int8 policy files over `observations`, as a fraction
+/// of each joint's range (through the runtime evaluator).
+fn evaluate_change(
+    a: &[u8],
+    b: &[u8],
+    observations: &[[f32; dex_runtime::interface::OBS_DIM]],
+) -> Result<f64, ExportError> {
+    let err = crate::evaluate::action_error(a, b, observations)?;
+    Ok(err.iter().copied().fold(0.0, f64::max))
+}
+
+/// Post-training quantisation with calibration: [`equalise_policy_file`] on `calibration`, then
+/// [`quantise_policy_file`] of the result (every layer int8). Returns the int8 file and the f32
+/// function change of the equalisation (see [`Equalised::max_f32_change`]).
+pub fn quantise_policy_file_calibrated(
+    f32_file: &[u8],
+    evaluation: Option<(f32, u32)>,
+    calibration: &[[f32; dex_runtime::interface::OBS_DIM]],
+) -> Result<(Vec<u8>, f64), ExportError> {
+    let eq = equalise_policy_file(f32_file, calibration)?;
+    Ok((
+        quantise_policy_file(&eq.file, evaluation)?,
+        eq.max_f32_change,
+    ))
 }
 
 /// [`export_actor`] at the given precision.

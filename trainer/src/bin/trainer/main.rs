@@ -163,8 +163,9 @@ struct ExportArgs {
     /// Output file (default RUN/seed-S/policy.dxpl, with --int8 RUN/seed-S/policy-int8.dxpl).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Also write an int8 policy (post-training quantisation: per-output-channel symmetric weight
-    /// scales, int32 accumulation in the runtime; format version 2), evaluated like the f32 one.
+    /// Also write an int8 policy (post-training quantisation after input folding and cross-layer
+    /// equalisation calibrated on 20 episodes from seed 8,000,000: per-output-channel symmetric
+    /// weight scales, int32 accumulation in the runtime; format version 2), evaluated like the f32 one.
     /// The f32 policy still goes to RUN/seed-S/policy.dxpl.
     #[arg(long)]
     int8: bool,
@@ -178,22 +179,41 @@ fn export_int8(
     out: &std::path::Path,
     settings: &config::TrainSettings,
 ) -> anyhow::Result<()> {
+    use dex_trainer::evaluate::heldout_observations;
     use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
-    use dex_trainer::export::quantise_policy_file;
+    use dex_trainer::export::{
+        CALIBRATION_EPISODES, CALIBRATION_SEED, quantise_policy_file_calibrated,
+    };
     let f32_file =
         std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
-    let draft = quantise_policy_file(&f32_file, None)?;
     let scene = dex_trainer::env::Scene::load()
         .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
+    let env = settings.reward.env_config(settings.task.task());
+    let calibration = heldout_observations(
+        &f32_file,
+        &scene,
+        env,
+        CALIBRATION_EPISODES,
+        CALIBRATION_SEED,
+    )?;
+    let (draft, change) = quantise_policy_file_calibrated(&f32_file, None, &calibration)?;
+    println!(
+        "equalised on {} calibration observations (f32 function change {change:.2e} of a joint's range)",
+        calibration.len()
+    );
     let eval_settings = EvalSettings {
-        env: settings.reward.env_config(settings.task.task()),
+        env,
         episodes: settings.final_eval_episodes,
         seed: 1_000_000,
         threads: settings.eval_threads,
         can_quantisation: true,
     };
     let e = evaluate_policy_file(&draft, &scene, &eval_settings, &|| {})?;
-    let file = quantise_policy_file(&f32_file, Some((e.success_rate() as f32, e.episodes)))?;
+    let (file, _) = quantise_policy_file_calibrated(
+        &f32_file,
+        Some((e.success_rate() as f32, e.episodes)),
+        &calibration,
+    )?;
     std::fs::write(out, &file).with_context(|| format!("cannot write {}", out.display()))?;
     let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
         let aligned = dex_runtime::testkit::aligned_copy(bytes);
