@@ -132,6 +132,20 @@ pub fn run_episode(
     }
 }
 
+/// Decodes a policy file (4-byte aligned) and checks that its observation and action layout is the
+/// Jaco cell's.
+pub fn decode_jaco_policy(aligned: &[u8]) -> Result<PolicyView<'_>, EvalError> {
+    let view = PolicyView::decode(aligned)?;
+    view.check_layout(
+        dex_runtime::interface::OBSERVATION_FIELDS
+            .iter()
+            .map(|f| (f.name, f.size)),
+        ACTION_JOINTS.iter().map(|j| j.name),
+    )
+    .map_err(EvalError::Layout)?;
+    Ok(view)
+}
+
 /// Evaluates a policy file on `settings.episodes` start states, calling `on_episode` after each.
 pub fn evaluate_policy_file(
     file: &[u8],
@@ -143,14 +157,7 @@ pub fn evaluate_policy_file(
         return Err(EvalError::NoEpisodes);
     }
     let aligned = dex_runtime::testkit::aligned_copy(file);
-    let view = PolicyView::decode(aligned.as_bytes())?;
-    view.check_layout(
-        dex_runtime::interface::OBSERVATION_FIELDS
-            .iter()
-            .map(|f| (f.name, f.size)),
-        ACTION_JOINTS.iter().map(|j| j.name),
-    )
-    .map_err(EvalError::Layout)?;
+    let view = decode_jaco_policy(aligned.as_bytes())?;
     let next = AtomicU32::new(0);
     let threads = settings.threads.clamp(1, settings.episodes as usize);
     let results: Vec<Result<Vec<(f64, bool)>, EvalError>> = std::thread::scope(|s| {

@@ -2,8 +2,11 @@
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
-use crate::env::{EnvConfig, EnvError, JacoEnv, Observation, Scene, StartScheme, StartStates};
+use crate::env::{
+    Demonstrator, EnvConfig, EnvError, JacoEnv, Observation, Scene, StartScheme, StartStates,
+};
 use crate::learn::{Env, Rng, Step};
+use crate::policy_demo::DemoSource;
 
 /// A [`JacoEnv`] driven by the learner: episodes start from seeds drawn from the learner's generator and
 /// end at the step budget (a time limit: the last state is still bootstrapped).
@@ -18,7 +21,7 @@ use crate::learn::{Env, Rng, Step};
 #[derive(Debug)]
 pub struct JacoLearnEnv {
     env: JacoEnv,
-    starts: StartStates,
+    starts: StartStates<DemoSource>,
     train_steps: u32,
     eval_steps: u32,
     max_steps: u32,
@@ -35,7 +38,7 @@ impl JacoLearnEnv {
             max_steps: config.episode_steps,
             train_steps: config.episode_steps,
             eval_steps: config.episode_steps,
-            starts: StartStates::original(config.task),
+            starts: StartStates::original(DemoSource::Scripted(Demonstrator::new(config.task))),
             env: JacoEnv::new(scene, config),
             errors: 0,
             last_error: None,
@@ -51,13 +54,17 @@ impl JacoLearnEnv {
         Ok(Self::with_start_states(
             scene,
             config,
-            StartStates::scripted(scheme, config.task)?,
+            StartStates::new(scheme, DemoSource::Scripted(Demonstrator::new(config.task)))?,
         ))
     }
 
     /// An environment whose training episodes start from `starts` (already validated; clone one
     /// per worker).
-    pub fn with_start_states(scene: &Scene, config: EnvConfig, starts: StartStates) -> Self {
+    pub fn with_start_states(
+        scene: &Scene,
+        config: EnvConfig,
+        starts: StartStates<DemoSource>,
+    ) -> Self {
         let mut env = Self::new(scene, config);
         env.train_steps = starts.scheme().train_episode_steps(config.episode_steps);
         env.max_steps = env.train_steps;
@@ -75,7 +82,7 @@ impl JacoLearnEnv {
         &mut self,
         rng: &mut Rng,
         obs: &mut [f32],
-        make: impl Fn(&mut JacoEnv, &mut StartStates, u64) -> Result<Observation, EnvError>,
+        make: impl Fn(&mut JacoEnv, &mut StartStates<DemoSource>, u64) -> Result<Observation, EnvError>,
     ) {
         for _ in 0..8 {
             match make(&mut self.env, &mut self.starts, rng.next_u64()) {

@@ -19,3 +19,4 @@ pub mod export;
 pub mod jaco;
 pub mod learn;
 pub mod plot;
+pub mod policy_demo;

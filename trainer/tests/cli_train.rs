@@ -99,5 +99,24 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     ]);
     assert!(!o.status.success());
     assert!(text(&o).contains("in-hand probability"), "{}", text(&o));
+    // A demonstrator policy needs the demonstration scheme, and must be a valid file.
+    let cfg = out.with_extension("toml");
+    std::fs::write(
+        &cfg,
+        "[start]\nscheme = \"mixture\"\ndemonstrator_policy = \"x.dxpl\"\n",
+    )
+    .unwrap();
+    let o = trainer(&["train", "--config", cfg.to_str().unwrap(), "--out", out_s]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("along-demonstrations"), "{}", text(&o));
+    std::fs::write(
+        &cfg,
+        "[start]\nscheme = \"along-demonstrations\"\ndemonstrator_policy = \"/nonexistent.dxpl\"\n",
+    )
+    .unwrap();
+    let o = trainer(&["train", "--config", cfg.to_str().unwrap(), "--out", out_s]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("/nonexistent.dxpl"), "{}", text(&o));
+    let _ = std::fs::remove_file(&cfg);
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -151,14 +151,6 @@ impl<D: Demonstration> std::fmt::Debug for StartStates<D> {
 }
 
 impl StartStates<Demonstrator> {
-    /// The original starts of `task` (never fails).
-    pub fn original(task: Task) -> Self {
-        Self {
-            scheme: StartScheme::Original,
-            demo: Demonstrator::new(task),
-        }
-    }
-
     /// Starts for `task` under `scheme`, with the scripted demonstrator for demonstrations.
     pub fn scripted(scheme: StartScheme, task: Task) -> Result<Self, EnvError> {
         Self::new(scheme, Demonstrator::new(task))
@@ -166,6 +158,14 @@ impl StartStates<Demonstrator> {
 }
 
 impl<D: Demonstration> StartStates<D> {
+    /// The original starts (never fails; `demo` is kept but unused).
+    pub fn original(demo: D) -> Self {
+        Self {
+            scheme: StartScheme::Original,
+            demo,
+        }
+    }
+
     /// Starts under `scheme`, with `demo` for demonstrations.
     pub fn new(scheme: StartScheme, demo: D) -> Result<Self, EnvError> {
         scheme.validate()?;

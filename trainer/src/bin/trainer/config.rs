@@ -97,7 +97,7 @@ pub enum StartArg {
 }
 
 /// Where training episodes start (evaluation always uses the task's original starts, full length).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StartSettings {
     /// The scheme.
@@ -106,6 +106,10 @@ pub struct StartSettings {
     pub in_hand_probability: f64,
     /// Training episode length under `along-demonstrations` (the paper: 50; evaluation keeps 150).
     pub train_episode_steps: u32,
+    /// Under `along-demonstrations`: an exported policy file to demonstrate instead of the
+    /// scripted demonstrator.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub demonstrator_policy: Option<PathBuf>,
 }
 
 impl Default for StartSettings {
@@ -114,6 +118,7 @@ impl Default for StartSettings {
             scheme: StartArg::Original,
             in_hand_probability: 0.5,
             train_episode_steps: dex_trainer::env::start_states::DEMO_TRAIN_EPISODE_STEPS,
+            demonstrator_policy: None,
         }
     }
 }
@@ -270,6 +275,11 @@ impl TrainSettings {
             .scheme()
             .validate()
             .context("invalid [start] settings")?;
+        if self.start.demonstrator_policy.is_some()
+            && self.start.scheme != StartArg::AlongDemonstrations
+        {
+            bail!("start.demonstrator_policy needs start.scheme = \"along-demonstrations\"");
+        }
         self.run.validate().context("invalid learner settings")?;
         Ok(())
     }

@@ -11,12 +11,13 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-use dex_trainer::env::{Scene, StartStates};
+use dex_trainer::env::{Demonstrator, Scene, StartStates};
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
 use dex_trainer::export::{ExportInfo, ObsNormalisation, export_actor};
 use dex_trainer::jaco::JacoLearnEnv;
 use dex_trainer::learn::{EvalRecord, Event, Trainer};
 use dex_trainer::plot::{Condition, Metric, XAxis, plot, read_eval_log};
+use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
 
 use crate::config::{self, TaskArg, TrainSettings};
 use crate::{EvalArgs, TrainArgs};
@@ -135,6 +136,18 @@ pub fn train_with(args: &TrainArgs, stop: &AtomicBool) -> anyhow::Result<bool> {
     let mut s = config::load(args.config.as_deref())?;
     apply_flags(&mut s, args);
     s.validate()?;
+    let demo = match &s.start.demonstrator_policy {
+        None => DemoSource::Scripted(Demonstrator::new(s.task.task())),
+        Some(path) => {
+            let bytes = std::fs::read(path)
+                .with_context(|| format!("cannot read demonstrator policy {}", path.display()))?;
+            DemoSource::Policy(Box::new(
+                PolicyDemonstration::from_file_bytes(&bytes)
+                    .with_context(|| format!("demonstrator policy {}", path.display()))?,
+            ))
+        }
+    };
+    let starts = StartStates::new(s.start.scheme(), demo).context("invalid [start] settings")?;
     let scene = load_scene()?;
     std::fs::create_dir_all(&s.out)
         .with_context(|| format!("cannot create {}", s.out.display()))?;
@@ -150,7 +163,7 @@ pub fn train_with(args: &TrainArgs, stop: &AtomicBool) -> anyhow::Result<bool> {
         s.out.display()
     );
     for &seed in &s.seeds {
-        if !train_seed(&s, seed, &scene, stop, args)? {
+        if !train_seed(&s, seed, &scene, &starts, stop, args)? {
             println!("stopped: checkpoint saved; continue with the same command and --resume");
             return Ok(false);
         }
@@ -167,6 +180,7 @@ fn train_seed(
     s: &TrainSettings,
     seed: u64,
     scene: &Scene,
+    starts: &StartStates<DemoSource>,
     stop: &AtomicBool,
     args: &TrainArgs,
 ) -> anyhow::Result<bool> {
@@ -191,7 +205,7 @@ fn train_seed(
             .and_then(|t| toml::from_str(&t).ok());
         let same_env = saved
             .as_ref()
-            .is_none_or(|o| (o.task, o.reward, o.start) == (s.task, s.reward, s.start));
+            .is_none_or(|o| (o.task, o.reward, &o.start) == (s.task, s.reward, &s.start));
         if t.config() != &per_seed.run || !same_env {
             bail!(
                 "settings differ from the checkpoint's in {} (learner, task, reward or start \
@@ -211,8 +225,6 @@ fn train_seed(
         .open(&log_path)
         .with_context(|| format!("cannot open {}", log_path.display()))?;
     let env_cfg = s.reward.env_config(s.task.task());
-    let starts = StartStates::scripted(s.start.scheme(), env_cfg.task)
-        .context("invalid [start] settings")?;
     let pb = bar(
         s.transitions,
         args.quiet,

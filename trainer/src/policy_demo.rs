@@ -1,0 +1,67 @@
+//! An exported policy file as the demonstration of the "along demonstrations" start scheme (the
+//! paper allows a previously trained policy in place of the scripted demonstrator). It acts through
+//! the runtime's evaluator, exactly as a controller would run it.
+
+use dex_runtime::Mlp;
+use dex_runtime::interface::ACT_DIM;
+
+use crate::env::{Demonstration, Demonstrator, EnvError, JacoEnv};
+use crate::evaluate::{EVAL_WIDTH, EvalError, decode_jaco_policy, physical_to_env_action};
+
+/// A policy file driving demonstrations.
+#[derive(Debug, Clone)]
+pub struct PolicyDemonstration {
+    mlp: Mlp<'static, EVAL_WIDTH>,
+}
+
+impl PolicyDemonstration {
+    /// Decodes and checks `file` (any alignment). The evaluator borrows the weights for the rest of
+    /// the process: the aligned copy is leaked once per call, so load a demonstrator once per run
+    /// and clone it per worker.
+    pub fn from_file_bytes(file: &[u8]) -> Result<Self, EvalError> {
+        let aligned: &'static dex_runtime::testkit::AlignedBytes =
+            Box::leak(Box::new(dex_runtime::testkit::aligned_copy(file)));
+        let view = decode_jaco_policy(aligned.as_bytes())?;
+        Ok(Self {
+            mlp: Mlp::new(&view)?,
+        })
+    }
+}
+
+impl Demonstration for PolicyDemonstration {
+    /// The policy is stateless.
+    fn restart(&mut self) {}
+
+    fn act(&mut self, env: &JacoEnv) -> Result<[f32; ACT_DIM], EnvError> {
+        let mut physical = [0.0f32; ACT_DIM];
+        self.mlp
+            .act(env.observation(), &mut physical)
+            .map_err(|e| EnvError::StartScheme(format!("demonstration policy: {e}")))?;
+        Ok(physical_to_env_action(&physical))
+    }
+}
+
+/// The demonstration behind a training run's start states: the scripted demonstrator or a policy.
+#[derive(Debug, Clone)]
+pub enum DemoSource {
+    /// The scripted demonstrator of the task.
+    Scripted(Demonstrator),
+    /// An exported policy.
+    Policy(Box<PolicyDemonstration>),
+}
+
+impl Demonstration for DemoSource {
+    fn restart(&mut self) {
+        match self {
+            DemoSource::Scripted(d) => Demonstration::restart(d),
+            DemoSource::Policy(p) => p.restart(),
+        }
+    }
+
+    fn act(&mut self, env: &JacoEnv) -> Result<[f32; ACT_DIM], EnvError> {
+        match self {
+            DemoSource::Scripted(d) => Demonstration::act(d, env),
+            DemoSource::Policy(p) => p.act(env),
+        }
+    }
+}
