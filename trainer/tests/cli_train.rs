@@ -40,6 +40,8 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
         "60",
         "--final-eval-episodes",
         "1",
+        "--select-best-episodes",
+        "2",
         "--quiet",
         "--out",
         out_s,
@@ -55,6 +57,14 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     ] {
         assert!(seed.join(f).exists(), "{f} missing:\n{}", text(&o));
     }
+    // The exported policy is the best checkpoint on the selection starts.
+    let best: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(seed.join("best.json")).unwrap()).unwrap();
+    let fin: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(seed.join("final_eval.json")).unwrap())
+            .unwrap();
+    assert_eq!(best["transitions"], fin["transitions"], "{best} {fin}");
+    assert!(text(&o).contains("selection at"), "{}", text(&o));
     let settings = std::fs::read_to_string(seed.join("settings.toml")).unwrap();
     assert!(settings.contains("along-demonstrations"), "{settings}");
 

@@ -158,6 +158,10 @@ pub struct TrainSettings {
     pub checkpoint_every: u64,
     /// Episodes of the evaluation of the exported policy (through the runtime).
     pub final_eval_episodes: u32,
+    /// At every checkpoint the current policy is evaluated through the runtime on this many
+    /// selection starts (seeds apart from the final evaluation's) and the best one so far is kept;
+    /// the exported policy is the best, not the last. 0 exports the last policy.
+    pub select_best_episodes: u32,
     /// Threads for that evaluation.
     pub eval_threads: usize,
     /// The learner.
@@ -189,8 +193,9 @@ impl Default for TrainSettings {
             transitions: 60_000,
             seeds: vec![0],
             out: PathBuf::from("runs/reach"),
-            checkpoint_every: 10_000,
+            checkpoint_every: 5_000,
             final_eval_episodes: 50,
+            select_best_episodes: 30,
             eval_threads: 2,
             run,
         }

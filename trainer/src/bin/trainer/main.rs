@@ -124,6 +124,9 @@ struct TrainArgs {
     /// Episodes of the final evaluation of each exported policy.
     #[arg(long)]
     final_eval_episodes: Option<u32>,
+    /// Selection starts per checkpoint (0: export the last policy instead of the best).
+    #[arg(long)]
+    select_best_episodes: Option<u32>,
     /// Continue from the checkpoints in the output folder.
     #[arg(long)]
     resume: bool,

@@ -98,6 +98,9 @@ fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if let Some(e) = a.final_eval_episodes {
         s.final_eval_episodes = e;
     }
+    if let Some(e) = a.select_best_episodes {
+        s.select_best_episodes = e;
+    }
 }
 
 fn load_scene() -> anyhow::Result<Scene> {
@@ -215,7 +218,14 @@ fn train_seed(
         }
         t
     } else {
-        let _ = std::fs::remove_file(&log_path);
+        // A fresh run: nothing of an earlier one in this folder may be mistaken for its own.
+        for stale in [
+            &log_path,
+            &dir.join("best.json"),
+            &dir.join("best_actor.bin"),
+        ] {
+            let _ = std::fs::remove_file(stale);
+        }
         Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?
     };
     write_atomic(&dir.join("settings.toml"), per_seed.to_toml()?.as_bytes())?;
@@ -280,6 +290,15 @@ fn train_seed(
         trainer
             .save(&ckpt)
             .with_context(|| format!("cannot write checkpoint {}", ckpt.display()))?;
+        if !summary.stopped
+            && let Some(line) = select_best(&trainer, s, seed, &dir, scene)?
+        {
+            if args.quiet {
+                println!("seed {seed}: {line}");
+            } else {
+                pb.println(line);
+            }
+        }
         if summary.stopped {
             pb.abandon();
             return Ok(false);
@@ -287,7 +306,13 @@ fn train_seed(
     }
     pb.finish();
     let out = dir.join("policy.dxpl");
-    let eval = export_checkpoint_trainer(&trainer, s, seed, &out, scene)?;
+    let eval = match read_best(&dir)? {
+        Some((params, best)) => {
+            let (net, _) = trainer.actor();
+            export_and_evaluate(net, &params, None, best.transitions, s, seed, &out, scene)?
+        }
+        None => export_checkpoint_trainer(&trainer, s, seed, &out, scene)?,
+    };
     println!(
         "seed {seed}: exported {} - runtime evaluation {}",
         out.display(),
@@ -323,10 +348,127 @@ fn export_checkpoint_trainer(
         mean: &n.mean,
         inv_std: &n.inv_std,
     });
-    let mut info = ExportInfo {
+    export_and_evaluate(
+        net,
+        params,
+        norm,
+        trainer.progress().transitions,
+        s,
+        seed,
+        out,
+        scene,
+    )
+}
+
+/// Start seed of the checkpoint-selection evaluations: apart from the final evaluation's
+/// (1,000,000) and from `trainer eval`'s default, so the final figure of a selected policy is not
+/// biased by the selection.
+pub const SELECTION_SEED: u64 = 2_000_000;
+
+/// The best checkpoint so far of a seed (`best.json` beside `best_actor.bin`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+struct BestPolicy {
+    transitions: u64,
+    success_rate: f64,
+    mean_return: f64,
+    episodes: u32,
+}
+
+/// Evaluates the trainer's current policy on the selection starts and keeps it when it beats the
+/// best so far (success rate, then mean return). Returns a line to print.
+fn select_best(
+    trainer: &Trainer,
+    s: &TrainSettings,
+    seed: u64,
+    dir: &Path,
+    scene: &Scene,
+) -> anyhow::Result<Option<String>> {
+    if s.select_best_episodes == 0 {
+        return Ok(None);
+    }
+    let (net, _) = trainer.actor();
+    // Normalisation folded into the first layer: the candidate stands alone.
+    let params = trainer.policy_params()?;
+    let info = ExportInfo {
         task: s.task.task(),
         seed,
         transitions: trainer.progress().transitions,
+        success_rate: None,
+        eval_episodes: 0,
+    };
+    let draft = export_actor(net, &params, None, &info)?;
+    let settings = EvalSettings {
+        env: s.reward.env_config(s.task.task()),
+        episodes: s.select_best_episodes,
+        seed: SELECTION_SEED,
+        threads: s.eval_threads,
+        can_quantisation: true,
+    };
+    let e = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
+    let now = BestPolicy {
+        transitions: info.transitions,
+        success_rate: e.success_rate(),
+        mean_return: e.mean_return,
+        episodes: e.episodes,
+    };
+    let best = read_best(dir)?.map(|(_, b)| b);
+    let better =
+        best.is_none_or(|b| (now.success_rate, now.mean_return) > (b.success_rate, b.mean_return));
+    let line = format!(
+        "selection at {} transitions: {:.0}% ({} starts), return {:.2}{}",
+        now.transitions,
+        now.success_rate * 100.0,
+        now.episodes,
+        now.mean_return,
+        if better { " - new best" } else { "" }
+    );
+    if better {
+        let bytes: Vec<u8> = params.iter().flat_map(|x| x.to_le_bytes()).collect();
+        write_atomic(&dir.join("best_actor.bin"), &bytes)?;
+        write_atomic(
+            &dir.join("best.json"),
+            serde_json::to_string(&now)?.as_bytes(),
+        )?;
+    }
+    Ok(Some(line))
+}
+
+/// The best checkpoint's actor parameters (normalisation folded in) and its record, if any.
+fn read_best(dir: &Path) -> anyhow::Result<Option<(Vec<f32>, BestPolicy)>> {
+    let (json, bin) = (dir.join("best.json"), dir.join("best_actor.bin"));
+    if !json.exists() || !bin.exists() {
+        return Ok(None);
+    }
+    let best: BestPolicy = serde_json::from_str(&std::fs::read_to_string(&json)?)
+        .with_context(|| format!("{} is damaged", json.display()))?;
+    let bytes = std::fs::read(&bin)?;
+    if bytes.len() % 4 != 0 {
+        bail!("{} is damaged (length {})", bin.display(), bytes.len());
+    }
+    let params = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Ok(Some((params, best)))
+}
+
+/// Exports `params` of `net`, evaluates the file through the runtime on the final-evaluation
+/// starts, and writes it with the measured success in its provenance, plus `final_eval.json`.
+#[allow(clippy::too_many_arguments)]
+fn export_and_evaluate(
+    net: &dex_trainer::learn::nets::Mlp,
+    params: &[f32],
+    norm: Option<ObsNormalisation<'_>>,
+    transitions: u64,
+    s: &TrainSettings,
+    seed: u64,
+    out: &Path,
+    scene: &Scene,
+) -> anyhow::Result<PolicyEval> {
+    let mut info = ExportInfo {
+        task: s.task.task(),
+        seed,
+        transitions,
         success_rate: None,
         eval_episodes: 0,
     };
