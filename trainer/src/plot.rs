@@ -40,6 +40,9 @@ pub enum Metric {
     MeanReturn,
     /// Success rate of the evaluation episodes.
     SuccessRate,
+    /// Mean return of the training episodes (with exploration noise, from the training starts:
+    /// under instructive start states this is where learning shows first).
+    TrainReturn,
 }
 
 /// What the x axis counts.
@@ -81,6 +84,7 @@ pub fn aggregate(seeds: &[Vec<EvalRecord>], metric: Metric, x: XAxis) -> Vec<(f6
                 .map(|s| match metric {
                     Metric::MeanReturn => s[i].mean_return,
                     Metric::SuccessRate => s[i].success_rate,
+                    Metric::TrainReturn => s[i].train_return,
                 })
                 .collect();
             let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -116,12 +120,13 @@ where
         y_min
             + match metric {
                 Metric::SuccessRate => 1.0,
-                Metric::MeanReturn => 0.1,
+                Metric::MeanReturn | Metric::TrainReturn => 0.1,
             },
     );
     let y_label = match metric {
         Metric::MeanReturn => "mean episode return",
         Metric::SuccessRate => "success rate",
+        Metric::TrainReturn => "mean training episode return",
     };
     let x_label = match x {
         XAxis::Total => "transitions (millions, all workers)",

@@ -98,7 +98,7 @@ pub enum StartArg {
 
 /// Where training episodes start (evaluation always uses the task's original starts, full length).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct StartSettings {
     /// The scheme.
     pub scheme: StartArg,
@@ -139,8 +139,9 @@ impl StartSettings {
 }
 
 /// Everything `trainer train` does, after merging defaults, the file and the flags.
+/// Missing keys take their defaults, so run folders written before a setting existed still load.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct TrainSettings {
     /// Task to learn.
     pub task: TaskArg,
@@ -351,6 +352,16 @@ mod tests {
         std::fs::write(&bad, "[start]\nscheme = \"teleport\"\n").unwrap();
         assert!(load(Some(&bad)).is_err());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn settings_written_before_newer_keys_existed_still_load() {
+        let mut v = toml::Value::try_from(TrainSettings::default()).unwrap();
+        let t = v.as_table_mut().unwrap();
+        t.remove("start");
+        t.remove("select_best_episodes");
+        let old: TrainSettings = toml::from_str(&toml::to_string(&v).unwrap()).unwrap();
+        assert_eq!(old, TrainSettings::default());
     }
 
     #[test]

@@ -223,17 +223,12 @@ fn export_int8(
         Ok(dex_policy::PolicyView::decode(aligned.as_bytes())?.weight_bytes())
     };
     println!(
-        "wrote {} (int8: {} weight bytes, f32 {}; {} bytes in all) - runtime evaluation success {}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
+        "wrote {} (int8: {} weight bytes, f32 {}; {} bytes in all) - runtime evaluation {}",
         out.display(),
         weight_bytes(&file)?,
         weight_bytes(&f32_file)?,
         file.len(),
-        e.successes,
-        e.episodes,
-        e.success_rate() * 100.0,
-        e.ci95.0 * 100.0,
-        e.ci95.1 * 100.0,
-        e.mean_return
+        train::describe(&e)
     );
     Ok(())
 }

@@ -321,7 +321,8 @@ fn train_seed(
     Ok(true)
 }
 
-fn describe(e: &PolicyEval) -> String {
+/// One line: successes, rate, 95% interval and mean return.
+pub fn describe(e: &PolicyEval) -> String {
     format!(
         "success {}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
         e.successes,
@@ -601,6 +602,7 @@ pub fn plot_conditions(
     for (metric, name) in [
         (Metric::MeanReturn, "return"),
         (Metric::SuccessRate, "success"),
+        (Metric::TrainReturn, "train_return"),
     ] {
         files.extend(plot(
             &name_of(name),
