@@ -20,6 +20,7 @@ for row in "grasp $grasp 99.2%" "stack-in-hand $inhand 98.2%" "stack $stack 95.5
     echo "| $1 | $2 | missing: train it first | $3 |"
     continue
   fi
-  line=$("$bin" eval "$2" --task "$1" --episodes "$episodes" --seed 3000000 2>/dev/null | grep -E "success" | tail -n1)
+  line=$("$bin" eval "$2" --task "$1" --episodes "$episodes" --seed 3000000 2>/dev/null \
+    | grep -E "success" | tail -n1 | sed 's/.*: success //')
   echo "| $1 | $2 | $line | $3 |"
 done
