@@ -18,7 +18,7 @@ use dex_policy::{
 use heapless::Vec;
 
 use crate::error::EvalError;
-use crate::int8::{dense_int8, quantise_inputs};
+use crate::int8::{dense_int8, quantise_inputs, quantise_inputs_with_max};
 
 /// How a layer's weights are stored, with what the kind needs beyond weights and biases.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -196,6 +196,9 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
             let z = (x - mean[i]) / scale[i];
             self.front[i] = z.clamp(-self.clip, self.clip);
         }
+        // `max |x|` of the next layer's inputs with their count, when the int8 kernel that wrote
+        // them computed it (then the next int8 layer skips its scan): `(max, count, non-negative)`.
+        let mut known_max: Option<(f32, usize, bool)> = None;
         // Ping-pong between the two buffers: even layers read `front`, odd layers read `back`.
         for (l, layer) in self.layers.iter().enumerate() {
             let b = &self.values[layer.biases..layer.biases + layer.outputs];
@@ -209,19 +212,37 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
                 Kind::F32 => {
                     let w = &self.values[layer.weights..layer.biases];
                     dense(&src[..layer.inputs], w, b, dst);
+                    activate(layer.activation, dst);
+                    known_max = None;
                 }
                 Kind::Int8 { scales } => {
                     let in_pad = padded(layer.inputs);
-                    let xq = &mut self.xq.0[..in_pad];
-                    let sx = quantise_inputs(&src[..layer.inputs], xq);
                     // Never fails: the buffer is 4-aligned and `in_pad` is a multiple of 4.
-                    let xw: &[u32] = bytemuck::try_cast_slice(xq).unwrap_or(&[]);
+                    let xw: &mut [u32] =
+                        bytemuck::try_cast_slice_mut(&mut self.xq.0[..in_pad]).unwrap_or(&mut []);
+                    let x = &src[..layer.inputs];
+                    let sx = match known_max {
+                        Some((max, n, nonneg)) if n == x.len() => {
+                            quantise_inputs_with_max(x, max, nonneg, xw)
+                        }
+                        _ => quantise_inputs(x, xw),
+                    };
+                    let xw = &*xw;
                     let w = &self.words[layer.weights..scales];
                     let s = &self.values[scales..layer.biases];
-                    dense_int8(xw, w, s, b, sx, dst);
+                    // ReLU (and the max of the outputs) fused into the kernel's rescale.
+                    let relu = layer.activation == Activation::Relu;
+                    let max = dense_int8(xw, w, s, b, sx, relu, dst);
+                    known_max = match layer.activation {
+                        Activation::Relu => Some((max, dst.len(), true)),
+                        Activation::Linear => Some((max, dst.len(), false)),
+                        Activation::Tanh => {
+                            activate(layer.activation, dst);
+                            None
+                        }
+                    };
                 }
             }
-            activate(layer.activation, dst);
         }
         let result = if self.layers.len() % 2 == 1 {
             &self.back
