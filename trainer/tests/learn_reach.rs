@@ -1,7 +1,8 @@
 //! The learning check CI runs: `trainer train` learns the Jaco Reach task from a fixed seed,
 //! measured on the exported policy file through the controller's runtime (50 random starts, CAN
 //! quantisation on). Uses the tuned configuration `experiments/reach-g90-ln-clr1e-3.toml` (60k
-//! transitions; about 2.5-5.5 minutes on 2 cores, see docs/training.md). Seed 0 reaches 46/50 = 92%
+//! transitions; 180 s in CI on 2 cores since the test profile builds dependencies like release, see
+//! docs/benchmarks.md). Seed 0 reaches 46/50 = 92%
 //! on this machine kind (one worker, fixed seed: deterministic for a given CPU), but over 200
 //! episodes the same policy is at 89.5% and seeds 1 and 2 reach 80-86%; the assertion is 80% so the
 //! check stays meaningful (an untrained actor scores 0%) without resting on one lucky episode count.
