@@ -28,11 +28,12 @@ use dex_runtime::interface::ACTION_JOINTS;
 use dex_runtime::testkit::aligned_copy;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
-    EvalSettings, HELDOUT_SEED, PolicyEval, action_error, action_errors, evaluate_policy_file,
+    EvalSettings, HELDOUT_SEED, action_error, action_errors, evaluate_policy_file,
     heldout_observations,
 };
 use dex_trainer::export::{
-    CALIBRATION_EPISODES, CALIBRATION_SEED, equalise_policy_file, quantise_policy_file,
+    CALIBRATION_EPISODES, CALIBRATION_SEED, calibration_observations, equalise_policy_file,
+    quantise_policy_file,
 };
 
 #[derive(Parser)]
@@ -71,18 +72,6 @@ fn task_of(view: &PolicyView<'_>) -> Task {
     }
 }
 
-fn describe(e: &PolicyEval) -> String {
-    format!(
-        "{}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
-        e.successes,
-        e.episodes,
-        e.success_rate() * 100.0,
-        e.ci95.0 * 100.0,
-        e.ci95.1 * 100.0,
-        e.mean_return
-    )
-}
-
 fn main() -> anyhow::Result<ExitCode> {
     let args = Args::parse();
     let f32_file = std::fs::read(&args.policy)
@@ -98,13 +87,7 @@ fn main() -> anyhow::Result<ExitCode> {
             let source = if args.no_equalise {
                 f32_file.clone()
             } else {
-                let calibration = heldout_observations(
-                    &f32_file,
-                    &scene,
-                    env,
-                    CALIBRATION_EPISODES,
-                    CALIBRATION_SEED,
-                )?;
+                let calibration = calibration_observations(&f32_file, &scene, env)?;
                 let eq = equalise_policy_file(&f32_file, &calibration)?;
                 println!(
                     "equalised on {} calibration observations ({CALIBRATION_EPISODES} episodes from seed {CALIBRATION_SEED}); f32 function change {:.2e} of a joint's range",
@@ -198,8 +181,8 @@ fn main() -> anyhow::Result<ExitCode> {
         "closed loop, {} episodes from seed 1000000 (CAN quantisation on):",
         args.episodes
     );
-    println!("  f32  {}", describe(&ea));
-    println!("  int8 {}", describe(&eb));
+    println!("  f32  {ea}");
+    println!("  int8 {eb}");
     println!("  difference {diff:+.1} points (goal within 2)");
     let ok = worst <= 0.01 && diff.abs() <= 2.0;
     println!("goals {}", if ok { "met" } else { "MISSED" });

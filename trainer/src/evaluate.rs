@@ -60,6 +60,22 @@ impl PolicyEval {
     }
 }
 
+impl std::fmt::Display for PolicyEval {
+    /// `successes/episodes = rate% (95% CI lo-hi%), mean return r`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
+            self.successes,
+            self.episodes,
+            self.success_rate() * 100.0,
+            self.ci95.0 * 100.0,
+            self.ci95.1 * 100.0,
+            self.mean_return
+        )
+    }
+}
+
 /// 95% Wilson score interval for `successes` out of `n` (z = 1.96).
 pub fn wilson_interval(successes: u32, n: u32) -> (f64, f64) {
     if n == 0 {
@@ -278,24 +294,11 @@ pub fn action_error(
     b: &[u8],
     observations: &[[f32; OBS_DIM]],
 ) -> Result<[f64; ACT_DIM], EvalError> {
-    let (fa, fb) = (
-        dex_runtime::testkit::aligned_copy(a),
-        dex_runtime::testkit::aligned_copy(b),
-    );
-    let (va, vb) = (
-        PolicyView::decode(fa.as_bytes())?,
-        PolicyView::decode(fb.as_bytes())?,
-    );
-    let mut ma = Mlp::<EVAL_WIDTH>::new(&va)?;
-    let mut mb = Mlp::<EVAL_WIDTH>::new(&vb)?;
+    let errors = action_errors(a, b, observations)?;
     let mut worst = [0.0f64; ACT_DIM];
-    for obs in observations {
-        let (mut ya, mut yb) = ([0.0f32; ACT_DIM], [0.0f32; ACT_DIM]);
-        ma.act(obs, &mut ya)?;
-        mb.act(obs, &mut yb)?;
-        for (k, w) in worst.iter_mut().enumerate() {
-            let range = f64::from(ACTION_JOINTS[k].max) - f64::from(ACTION_JOINTS[k].min);
-            *w = w.max((f64::from(ya[k]) - f64::from(yb[k])).abs() / range);
+    for row in errors.chunks_exact(ACT_DIM) {
+        for (w, &e) in worst.iter_mut().zip(row) {
+            *w = w.max(e);
         }
     }
     Ok(worst)

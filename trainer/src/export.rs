@@ -111,6 +111,22 @@ pub const CALIBRATION_SEED: u64 = 8_000_000;
 /// Episodes whose observations calibrate the int8 exporter.
 pub const CALIBRATION_EPISODES: u32 = 20;
 
+/// The int8 exporter's calibration set: every observation of [`CALIBRATION_EPISODES`] episodes of
+/// `env` driven by the f32 policy `f32_file` from [`CALIBRATION_SEED`].
+pub fn calibration_observations(
+    f32_file: &[u8],
+    scene: &crate::env::Scene,
+    env: crate::env::EnvConfig,
+) -> Result<Vec<[f32; dex_runtime::interface::OBS_DIM]>, crate::evaluate::EvalError> {
+    crate::evaluate::heldout_observations(
+        f32_file,
+        scene,
+        env,
+        CALIBRATION_EPISODES,
+        CALIBRATION_SEED,
+    )
+}
+
 /// Smallest per-input range [`equalise_policy_file`] folds into the first layer, in normalised
 /// units: inputs that barely vary in calibration are not blown up, and with the file's clip of
 /// [`EXPORT_OBS_CLIP`] the folded normalisation still clips only values beyond

@@ -16,7 +16,7 @@ use dex_trainer::evaluate::{
     EvalSettings, HELDOUT_SEED, action_error, evaluate_policy_file, heldout_observations,
 };
 use dex_trainer::export::{
-    CALIBRATION_EPISODES, CALIBRATION_SEED, equalise_policy_file, quantise_policy_file,
+    calibration_observations, equalise_policy_file, quantise_policy_file,
     quantise_policy_file_calibrated,
 };
 
@@ -25,7 +25,7 @@ const TRAINED: &[u8] = include_bytes!("fixtures/reach_seed0.dxpl");
 /// Calibration observations: `CALIBRATION_EPISODES` f32 episodes from `CALIBRATION_SEED`, a seed
 /// range apart from the held-out one.
 fn calibration(scene: &Scene, env: EnvConfig) -> Vec<[f32; dex_runtime::interface::OBS_DIM]> {
-    heldout_observations(TRAINED, scene, env, CALIBRATION_EPISODES, CALIBRATION_SEED).unwrap()
+    calibration_observations(TRAINED, scene, env).unwrap()
 }
 
 /// Held-out observations driven by the f32 policy and by `int8` (5 episodes each).

@@ -786,6 +786,14 @@ fn worker_loop<E: Env>(
     }
 }
 
+/// Copies `shared` into the worker's `local` copy when its version moved on since the last copy.
+fn refresh(local: &mut [f32], seen: &mut u64, shared: &[f32], version: u64) {
+    if *seen != version {
+        local.copy_from_slice(shared);
+        *seen = version;
+    }
+}
+
 /// One DDPG update on shared parameters (steps 1-6 of the module docs).
 fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), LearnError> {
     let cfg = ctx.cfg;
@@ -805,25 +813,33 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
     }
     {
         let a = lock(&ctx.actor)?;
-        if local.versions[0] != a.version {
-            local.actor.copy_from_slice(&a.params);
-            local.versions[0] = a.version;
-        }
-        if local.versions[2] != a.target_version {
-            local.target_actor.copy_from_slice(&a.target);
-            local.versions[2] = a.target_version;
-        }
+        refresh(
+            &mut local.actor,
+            &mut local.versions[0],
+            &a.params,
+            a.version,
+        );
+        refresh(
+            &mut local.target_actor,
+            &mut local.versions[2],
+            &a.target,
+            a.target_version,
+        );
     }
     {
         let c = lock(&ctx.critic)?;
-        if local.versions[1] != c.version {
-            local.critic.copy_from_slice(&c.params);
-            local.versions[1] = c.version;
-        }
-        if local.versions[3] != c.target_version {
-            local.target_critic.copy_from_slice(&c.target);
-            local.versions[3] = c.target_version;
-        }
+        refresh(
+            &mut local.critic,
+            &mut local.versions[1],
+            &c.params,
+            c.version,
+        );
+        refresh(
+            &mut local.target_critic,
+            &mut local.versions[3],
+            &c.target,
+            c.target_version,
+        );
     }
     critic_gradient(
         nets,

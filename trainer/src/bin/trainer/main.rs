@@ -182,23 +182,14 @@ fn export_int8(
     out: &std::path::Path,
     settings: &config::TrainSettings,
 ) -> anyhow::Result<()> {
-    use dex_trainer::evaluate::heldout_observations;
     use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
-    use dex_trainer::export::{
-        CALIBRATION_EPISODES, CALIBRATION_SEED, quantise_policy_file_calibrated,
-    };
+    use dex_trainer::export::{calibration_observations, quantise_policy_file_calibrated};
     let f32_file =
         std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
     let scene = dex_trainer::env::Scene::load()
         .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
     let env = settings.reward.env_config(settings.task.task());
-    let calibration = heldout_observations(
-        &f32_file,
-        &scene,
-        env,
-        CALIBRATION_EPISODES,
-        CALIBRATION_SEED,
-    )?;
+    let calibration = calibration_observations(&f32_file, &scene, env)?;
     let (draft, change) = quantise_policy_file_calibrated(&f32_file, None, &calibration)?;
     println!(
         "equalised on {} calibration observations (f32 function change {change:.2e} of a joint's range)",

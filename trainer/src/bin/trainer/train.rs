@@ -323,15 +323,7 @@ fn train_seed(
 
 /// One line: successes, rate, 95% interval and mean return.
 pub fn describe(e: &PolicyEval) -> String {
-    format!(
-        "success {}/{} = {:.1}% (95% CI {:.1}-{:.1}%), mean return {:.2}",
-        e.successes,
-        e.episodes,
-        e.success_rate() * 100.0,
-        e.ci95.0 * 100.0,
-        e.ci95.1 * 100.0,
-        e.mean_return
-    )
+    format!("success {e}")
 }
 
 /// Exports the trainer's actor, evaluates the file through the runtime, and writes the file with the
