@@ -63,7 +63,7 @@ pub const fn is_padding(inputs: usize, outputs: usize, index: usize) -> bool {
 }
 
 #[cfg(feature = "std")]
-pub use quantise::{QuantisedLayer, pack, quantise_layer, quantise_policy};
+pub use quantise::{QuantisedLayer, on_grid, pack, quantise_layer, quantise_policy};
 
 #[cfg(feature = "std")]
 mod quantise {
@@ -106,6 +106,26 @@ mod quantise {
             }
         }
         QuantisedLayer { weights, scales }
+    }
+
+    /// Whether input-major f32 weights already lie on the grid of [`quantise_layer`] (as those of a
+    /// quantisation-aware trained layer do): quantising them again reproduces every weight to
+    /// within `1e-6` of its output channel's largest magnitude (the f32 rounding of a recomputed
+    /// scale), so the int8 layer computes the same function as the f32 one. An all-zero layer is
+    /// on the grid; a non-finite weight is not.
+    pub fn on_grid(inputs: usize, outputs: usize, w: &[f32]) -> bool {
+        if w.len() != inputs * outputs || w.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+        let q = quantise_layer(inputs, outputs, w);
+        (0..outputs).all(|j| {
+            let s = q.scales[j];
+            let max = s * Q_MAX;
+            (0..inputs).all(|i| {
+                let back = f32::from(q.weights[j * inputs + i]) * s;
+                (back - w[i * outputs + j]).abs() <= 1e-6 * max
+            })
+        })
     }
 
     /// Packs output-major int8 weights (`q[j * inputs + i]`) into the file's block order, with

@@ -352,3 +352,43 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// Dequantised weights are on the grid (and stay there), random weights are not, nor is a
+    /// grid layer with one weight nudged by a hundredth of a step.
+    #[test]
+    fn dequantised_layers_are_on_the_grid_and_others_are_not(
+        inputs in 2usize..40,
+        outputs in 1usize..12,
+        seed in any::<u64>(),
+    ) {
+        let mut state = seed | 1;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
+        };
+        let w: Vec<f32> = (0..inputs * outputs).map(|_| next() * 0.7).collect();
+        prop_assume!(!int8::on_grid(inputs, outputs, &w));
+        let q = int8::quantise_layer(inputs, outputs, &w);
+        let mut grid = vec![0.0f32; w.len()];
+        for i in 0..inputs {
+            for j in 0..outputs {
+                grid[i * outputs + j] = f32::from(q.weights[j * inputs + i]) * q.scales[j];
+            }
+        }
+        prop_assert!(int8::on_grid(inputs, outputs, &grid));
+        // A weight that is not the column's largest, moved by 1% of a step, leaves the grid.
+        let j = 0;
+        let big = (0..inputs).map(|i| grid[i * outputs + j].abs()).fold(0.0f32, f32::max);
+        if let Some(i) = (0..inputs).find(|&i| grid[i * outputs + j].abs() < 0.5 * big) {
+            let mut nudged = grid.clone();
+            nudged[i * outputs + j] += 0.01 * q.scales[j];
+            prop_assert!(!int8::on_grid(inputs, outputs, &nudged));
+        }
+        prop_assert!(!int8::on_grid(inputs, outputs, &grid[1..]));
+    }
+}

@@ -200,3 +200,60 @@ fn observation_normalisation_learns_folds_and_resumes() {
     assert!(params_bits(&one) == params_bits(&two));
     assert_eq!(one.obs_normalizer(), two.obs_normalizer());
 }
+
+/// Whether every layer of `params` lies on the int8 grid of the exporter.
+fn on_grid(t: &Trainer, params: &[f32]) -> bool {
+    let (actor, _) = t.actor();
+    actor.weight_spans().all(|(start, fan_in, fan_out)| {
+        dex_policy::int8::on_grid(fan_in, fan_out, &params[start..start + fan_in * fan_out])
+    })
+}
+
+#[test]
+fn quantisation_aware_training_keeps_learning_on_the_int8_grid() {
+    let mut cfg = small_config(1);
+    cfg.quantise.aware_from = Some(3_000);
+    let stop = AtomicBool::new(false);
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    t.run(env, 2_000, &stop, &mut quiet).expect("run");
+    // Before the quantised phase the policy is the plain f32 actor.
+    assert!(!t.quantisation_aware());
+    let (_, raw) = t.actor();
+    assert_eq!(t.policy_params().expect("params"), raw);
+    assert!(!on_grid(&t, raw));
+    let s = t.run(env, 6_000, &stop, &mut quiet).expect("run");
+    assert!(t.quantisation_aware());
+    // Evaluations of the quantised phase (their policy is the int8-grid one) still succeed.
+    let quantised: Vec<f64> = s
+        .records
+        .iter()
+        .filter(|r| r.transitions >= 3_000)
+        .map(|r| r.success_rate)
+        .collect();
+    assert!(quantised.len() >= 3, "{quantised:?}");
+    let last = quantised.last().copied().unwrap_or(0.0);
+    assert!(last >= 0.9, "success of the quantised policy {quantised:?}");
+    // The exported policy lies on the grid; the f32 shadow weights it was trained through do not.
+    let grid = t.policy_params().expect("params");
+    let (actor, raw) = t.actor();
+    assert!(on_grid(&t, &grid) && !on_grid(&t, raw));
+    // And `act` is that policy.
+    let obs = [0.3f32, -0.2, 0.5, 0.1, 0.2, 0.3];
+    let mut scratch = actor.scratch(1);
+    let want = actor
+        .forward(&grid, &obs, 1, &mut scratch)
+        .expect("forward")
+        .to_vec();
+    let mut got = [0.0f32; 2];
+    t.act(&obs, &mut got).expect("act");
+    assert_eq!(want, got);
+    // Deterministic through a checkpoint, like the f32 learner.
+    let mut again = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    again.run(env, 3_500, &stop, &mut quiet).expect("run");
+    let mut again = Trainer::from_checkpoint_bytes(&again.to_checkpoint_bytes()).expect("restore");
+    again.run(env, 6_000, &stop, &mut quiet).expect("run");
+    assert!(params_bits(&again) == params_bits(&t));
+    // Normalisation would fold the normaliser into the first layer, off the grid: refused.
+    cfg.obs_norm.enabled = true;
+    assert!(Trainer::new(cfg, 6, 2).is_err());
+}

@@ -5,6 +5,7 @@
 //!   ([`kernel`]; the engine choice is measured in docs/benchmarks.md).
 //! - [`adam`]: Adam with per-worker first moments and one shared second moment.
 //! - [`norm`]: optional observation normalisation, foldable into the actor for export.
+//! - [`quantise`]: quantisation-aware training of the actor (int8-grid weights, straight-through).
 //! - [`replay`]: uniform ring-buffer replay. [`ddpg`]: the DDPG gradients and target networks.
 //! - [`env`](mod@env): the [`Env`] trait the learner drives, and a toy [`PointMass`] task for tests.
 //! - [`trainer`]: [`Trainer`] runs W worker threads (W = 1 is DPG-R) with R updates per environment step,
@@ -20,6 +21,7 @@ pub mod env;
 pub mod kernel;
 pub mod nets;
 pub mod norm;
+pub mod quantise;
 pub mod replay;
 pub mod rng;
 pub mod trainer;
@@ -29,6 +31,7 @@ pub use ddpg::{DdpgConfig, Networks, TargetUpdate};
 pub use env::{Env, PointMass, PointMassConfig, Step};
 pub use kernel::Engine;
 pub use norm::{Normalizer, ObsNormConfig};
+pub use quantise::QuantiseConfig;
 pub use rng::Rng;
 pub use trainer::{
     EvalConfig, EvalRecord, Event, NoiseConfig, Progress, ReplayConfig, RunConfig, RunSummary,

@@ -252,6 +252,12 @@ impl Mlp {
             .collect())
     }
 
+    /// Where each layer's weights sit in the flat parameter vector: `(start, fan_in, fan_out)`,
+    /// input-major (`params[start + i * fan_out + j]` links input `i` to output `j`).
+    pub fn weight_spans(&self) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
+        self.layout.iter().map(|l| (l.w, l.fan_in, l.fan_out))
+    }
+
     fn check_params(&self, len: usize) -> Result<(), LearnError> {
         if len == self.num_params {
             Ok(())

@@ -33,6 +33,7 @@ use super::ddpg::{DdpgConfig, Networks, UpdateBuffers, actor_gradient, critic_gr
 use super::env::Env;
 use super::nets::{Mlp, MlpScratch};
 use super::norm::{Normalizer, ObsNormConfig, ObsStats};
+use super::quantise::{QuantiseConfig, QuantisedCopy, fake_quantise};
 use super::replay::Replay;
 use super::rng::Rng;
 use serde::{Deserialize, Serialize};
@@ -121,6 +122,8 @@ pub struct RunConfig {
     pub train_episode_steps: Option<usize>,
     /// Observation normalisation (off by default; see [`Trainer::policy_params`] for export).
     pub obs_norm: ObsNormConfig,
+    /// Quantisation-aware training of the actor (off by default; see [`super::quantise`]).
+    pub quantise: QuantiseConfig,
     /// Seed of everything random in the run.
     pub seed: u64,
 }
@@ -145,6 +148,7 @@ impl Default for RunConfig {
             eval: EvalConfig::default(),
             train_episode_steps: None,
             obs_norm: ObsNormConfig::default(),
+            quantise: QuantiseConfig::default(),
             seed: 0,
         }
     }
@@ -184,6 +188,13 @@ impl RunConfig {
             if !ok {
                 return bad(field, "lr > 0, betas in [0, 1), eps > 0");
             }
+        }
+        if self.quantise.aware_from.is_some() && self.obs_norm.enabled {
+            return bad(
+                "quantise.aware_from",
+                "needs obs_norm off: folding the normaliser into the first layer would move its \
+                 weights off the int8 grid",
+            );
         }
         if let super::ddpg::TargetUpdate::Polyak { tau } = self.ddpg.target
             && !(tau > 0.0 && tau <= 1.0)
@@ -399,7 +410,8 @@ impl Trainer {
             let d = self.nets.obs_dim.min(x.len());
             n.apply_rows(&mut x[..d]);
         }
-        let out = self.nets.actor.forward(&self.shared.actor, &x, 1, &mut s)?;
+        let params = self.policy_params()?;
+        let out = self.nets.actor.forward(&params, &x, 1, &mut s)?;
         let n = action.len().min(out.len());
         action[..n].copy_from_slice(&out[..n]);
         Ok(())
@@ -413,10 +425,23 @@ impl Trainer {
             .then(|| self.shared.obs_stats.normalizer(self.cfg.obs_norm.min_std))
     }
 
-    /// The actor's parameters for export: the raw parameters, or with normalisation on, the
-    /// parameters with the normaliser folded into the first layer, so the policy takes raw
-    /// observations (`Trainer::actor().0` describes both).
+    /// Whether the actor is quantisation-aware now (see [`super::quantise`]): acting, evaluation and
+    /// export use its int8-grid weights.
+    pub fn quantisation_aware(&self) -> bool {
+        self.cfg.quantise.active(self.progress().transitions)
+    }
+
+    /// The actor's parameters for export: the raw parameters; once quantisation-aware, the weights
+    /// on the int8 grid (the policy the learner trains); or with normalisation on, the parameters
+    /// with the normaliser folded into the first layer, so the policy takes raw observations
+    /// (`Trainer::actor().0` describes all three). Normalisation and quantisation-aware training
+    /// exclude each other ([`RunConfig::validate`]).
     pub fn policy_params(&self) -> Result<Vec<f32>, LearnError> {
+        if self.quantisation_aware() {
+            let mut q = vec![0.0; self.shared.actor.len()];
+            fake_quantise(&self.nets.actor, &self.shared.actor, &mut q)?;
+            return Ok(q);
+        }
         match self.obs_normalizer() {
             Some(n) => n.fold_into_actor(&self.nets.actor, &self.shared.actor),
             None => Ok(self.shared.actor.clone()),
@@ -606,6 +631,13 @@ impl Ctx<'_> {
         }
     }
 
+    /// Whether the actor is used quantisation-aware from now on.
+    fn quantisation_aware(&self) -> bool {
+        self.cfg
+            .quantise
+            .active(self.transitions.load(Ordering::Relaxed))
+    }
+
     fn halted(&self) -> bool {
         self.stop.load(Ordering::Relaxed) || self.failed.load(Ordering::Relaxed)
     }
@@ -641,6 +673,9 @@ struct Local {
     act_scratch: MlpScratch,
     /// The worker's copy of the observation normaliser (refreshed every step when on).
     norm: Normalizer,
+    /// Int8-grid copies of the actor and target actor (quantisation-aware training).
+    actor_q: QuantisedCopy,
+    target_actor_q: QuantisedCopy,
 }
 
 fn worker_loop<E: Env>(
@@ -672,6 +707,8 @@ fn worker_loop<E: Env>(
             bufs: UpdateBuffers::new(nets, cfg.ddpg.batch_size),
             act_scratch: nets.actor.scratch(1),
             norm: lock(&ctx.obs_stats)?.normalizer(cfg.obs_norm.min_std),
+            actor_q: QuantisedCopy::default(),
+            target_actor_q: QuantisedCopy::default(),
         }
     };
     let mut obs = vec![0.0f32; od];
@@ -700,9 +737,18 @@ fn worker_loop<E: Env>(
         if norm_on {
             local.norm.apply_rows(&mut obs_n);
         }
+        let aware = ctx.quantisation_aware();
+        // The actor as the worker uses it: its int8-grid version once quantisation-aware.
+        let params = if aware {
+            local
+                .actor_q
+                .get(&nets.actor, &local.actor, local.versions[0])?
+        } else {
+            &local.actor
+        };
         let mean = nets
             .actor
-            .forward(&local.actor, &obs_n, 1, &mut local.act_scratch)?;
+            .forward(params, &obs_n, 1, &mut local.act_scratch)?;
         for (a, &m) in action.iter_mut().zip(mean) {
             *a = ws.rng.normal(m, cfg.noise.std).clamp(-1.0, 1.0);
         }
@@ -744,9 +790,16 @@ fn worker_loop<E: Env>(
             if every > 0 && n.is_multiple_of(every) {
                 let index = n / every;
                 let mut rng = Rng::derive(cfg.seed, STREAM_EVAL + index);
+                let params = if ctx.quantisation_aware() {
+                    local
+                        .actor_q
+                        .get(&nets.actor, &local.actor, local.versions[0])?
+                } else {
+                    &local.actor
+                };
                 let (mean_return, success_rate) = evaluate(
                     &nets.actor,
-                    &local.actor,
+                    params,
                     &mut env,
                     &cfg.eval,
                     &mut rng,
@@ -841,11 +894,21 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
             c.target_version,
         );
     }
+    // Quantisation-aware: the target actor and the actor are used with int8-grid weights; the
+    // actor's gradient (taken at the quantised weights) updates the f32 weights (straight-through).
+    let aware = ctx.quantisation_aware();
+    let target_actor = if aware {
+        local
+            .target_actor_q
+            .get(&nets.actor, &local.target_actor, local.versions[2])?
+    } else {
+        &local.target_actor
+    };
     critic_gradient(
         nets,
         cfg.ddpg.gamma,
         &local.critic,
-        &local.target_actor,
+        target_actor,
         &local.target_critic,
         &mut local.bufs,
     )?;
@@ -863,7 +926,14 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         local.critic.copy_from_slice(&c.params);
         local.versions[1] = c.version;
     }
-    actor_gradient(nets, &local.actor, &local.critic, &mut local.bufs)?;
+    let actor = if aware {
+        local
+            .actor_q
+            .get(&nets.actor, &local.actor, local.versions[0])?
+    } else {
+        &local.actor
+    };
+    actor_gradient(nets, actor, &local.critic, &mut local.bufs)?;
     let t = cfg.ddpg.target;
     let u = {
         let mut guard = lock(&ctx.actor)?;

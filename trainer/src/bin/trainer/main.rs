@@ -115,6 +115,10 @@ struct TrainArgs {
     /// One replay buffer per worker instead of a shared one.
     #[arg(long)]
     per_worker_replay: bool,
+    /// Quantisation-aware training from this many transitions on: the actor is trained and
+    /// exported with int8-grid weights, so `trainer export --int8` loses (almost) nothing.
+    #[arg(long)]
+    quantise_aware_from: Option<u64>,
     /// Output folder.
     #[arg(long)]
     out: Option<PathBuf>,

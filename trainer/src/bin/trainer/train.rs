@@ -89,6 +89,9 @@ fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if a.per_worker_replay {
         s.run.replay.shared = false;
     }
+    if let Some(t) = a.quantise_aware_from {
+        s.run.quantise.aware_from = Some(t);
+    }
     if let Some(o) = &a.out {
         s.out.clone_from(o);
     }
@@ -335,7 +338,15 @@ fn export_checkpoint_trainer(
     out: &Path,
     scene: &Scene,
 ) -> anyhow::Result<PolicyEval> {
-    let (net, params) = trainer.actor();
+    let (net, raw) = trainer.actor();
+    // Quantisation-aware: the int8-grid weights the learner trained (no normaliser then).
+    let grid;
+    let params = if trainer.quantisation_aware() {
+        grid = trainer.policy_params()?;
+        &grid[..]
+    } else {
+        raw
+    };
     let normaliser = trainer.obs_normalizer();
     let norm = normaliser.as_ref().map(|n| ObsNormalisation {
         mean: &n.mean,
@@ -376,7 +387,11 @@ fn select_best(
     dir: &Path,
     scene: &Scene,
 ) -> anyhow::Result<Option<String>> {
-    if s.select_best_episodes == 0 {
+    // A quantisation-aware run chooses among its quantised policies only: the exported policy is
+    // then the one trained for int8.
+    if s.select_best_episodes == 0
+        || (s.run.quantise.aware_from.is_some() && !trainer.quantisation_aware())
+    {
         return Ok(None);
     }
     let (net, _) = trainer.actor();
