@@ -13,7 +13,8 @@
 //! - held-out observations: every observation of `--heldout-episodes` episodes driven by the f32
 //!   policy and as many driven by the int8 policy, from start seeds `HELDOUT_SEED` (7,000,000; no
 //!   training or evaluation uses them); the error is `max |a_int8 - a_f32| / (max - min)` per joint.
-//! - closed loop: `trainer eval`'s episodes (start seed 1,000,000, CAN quantisation on) for both.
+//! - closed loop: `trainer eval`'s episodes (start seed 1,000,000, CAN quantisation on) for both,
+//!   and start by start which outcomes differ.
 //!
 //! Exit status 0 when both goals hold (error <= 1% of every joint's range, success within 2
 //! points), 1 otherwise.
@@ -28,7 +29,7 @@ use dex_runtime::interface::ACTION_JOINTS;
 use dex_runtime::testkit::aligned_copy;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
-    EvalSettings, HELDOUT_SEED, action_error, action_errors, evaluate_policy_file,
+    EvalSettings, HELDOUT_SEED, PolicyEval, action_error, action_errors, episode_outcomes,
     heldout_observations,
 };
 use dex_trainer::export::{
@@ -61,6 +62,40 @@ struct Args {
     /// Write the quantised policy here.
     #[arg(long)]
     write: Option<PathBuf>,
+    /// Also run the control: the f32 policy with every weight moved by one ulp, a change far below
+    /// any quantisation, start by start against the f32 policy (how chaotic the outcomes are).
+    #[arg(long)]
+    control: bool,
+}
+
+/// `f32_file` with every f32 layer weight moved one ulp away from zero (biases and normalisation
+/// kept).
+fn nudged(f32_file: &[u8]) -> anyhow::Result<Vec<u8>> {
+    let aligned = aligned_copy(f32_file);
+    let view = PolicyView::decode(aligned.as_bytes())?;
+    let mut values = view.values().as_slice()?.to_vec();
+    for l in view.layers() {
+        for w in &mut values[l.weights..l.weights + l.inputs * l.outputs] {
+            *w = f32::from_bits(w.to_bits() + 1);
+        }
+    }
+    Ok(dex_policy::encode_to_vec(view.body(), &values)?)
+}
+
+/// Start-by-start outcome counts of two policies: (both, first only, second only, neither).
+fn paired(a: &[(f64, bool)], b: &[(f64, bool)]) -> [usize; 4] {
+    let count = |x: bool, y: bool| {
+        a.iter()
+            .zip(b)
+            .filter(|(p, q)| (p.1, q.1) == (x, y))
+            .count()
+    };
+    [
+        count(true, true),
+        count(true, false),
+        count(false, true),
+        count(false, false),
+    ]
 }
 
 fn task_of(view: &PolicyView<'_>) -> Task {
@@ -174,9 +209,15 @@ fn main() -> anyhow::Result<ExitCode> {
         threads: args.threads,
         can_quantisation: true,
     };
-    let ea = evaluate_policy_file(&f32_file, &scene, &settings, &|| {})?;
-    let eb = evaluate_policy_file(&int8_file, &scene, &settings, &|| {})?;
+    let oa = episode_outcomes(&f32_file, &scene, &settings, &|| {})?;
+    let ob = episode_outcomes(&int8_file, &scene, &settings, &|| {})?;
+    let (ea, eb) = (
+        PolicyEval::from_outcomes(&oa),
+        PolicyEval::from_outcomes(&ob),
+    );
     let diff = (eb.success_rate() - ea.success_rate()) * 100.0;
+    // Start by start: the episodes whose outcome the int8 weights changed.
+    let [both, f32_only, int8_only, neither] = paired(&oa, &ob);
     println!(
         "closed loop, {} episodes from seed 1000000 (CAN quantisation on):",
         args.episodes
@@ -184,6 +225,26 @@ fn main() -> anyhow::Result<ExitCode> {
     println!("  f32  {ea}");
     println!("  int8 {eb}");
     println!("  difference {diff:+.1} points (goal within 2)");
+    println!(
+        "  start by start: both succeed {both}, f32 only {f32_only}, int8 only {int8_only}, neither {neither}"
+    );
+    if args.control {
+        let control = nudged(&f32_file)?;
+        let change = action_error(&f32_file, &control, &observations)?
+            .iter()
+            .copied()
+            .fold(0.0, f64::max);
+        let oc = episode_outcomes(&control, &scene, &settings, &|| {})?;
+        let [both, f32_only, nudged_only, neither] = paired(&oa, &oc);
+        println!(
+            "control, f32 with every weight one ulp away from zero: worst action change {:.4}% of a joint's range, {}",
+            change * 100.0,
+            PolicyEval::from_outcomes(&oc)
+        );
+        println!(
+            "  start by start: both succeed {both}, f32 only {f32_only}, nudged only {nudged_only}, neither {neither}"
+        );
+    }
     let ok = worst <= 0.01 && diff.abs() <= 2.0;
     println!("goals {}", if ok { "met" } else { "MISSED" });
     Ok(if ok {

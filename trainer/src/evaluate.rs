@@ -54,6 +54,19 @@ pub struct PolicyEval {
 }
 
 impl PolicyEval {
+    /// The summary of (return, success) episode outcomes.
+    pub fn from_outcomes(outcomes: &[(f64, bool)]) -> Self {
+        let n = outcomes.len() as u32;
+        let successes = outcomes.iter().map(|&(_, ok)| u32::from(ok)).sum();
+        let total: f64 = outcomes.iter().map(|&(ret, _)| ret).sum();
+        PolicyEval {
+            episodes: n,
+            successes,
+            mean_return: total / f64::from(n.max(1)),
+            ci95: wilson_interval(successes, n),
+        }
+    }
+
     /// Fraction of successful episodes.
     pub fn success_rate(&self) -> f64 {
         f64::from(self.successes) / f64::from(self.episodes.max(1))
@@ -169,6 +182,20 @@ pub fn evaluate_policy_file(
     settings: &EvalSettings,
     on_episode: &(dyn Fn() + Sync),
 ) -> Result<PolicyEval, EvalError> {
+    Ok(PolicyEval::from_outcomes(&episode_outcomes(
+        file, scene, settings, on_episode,
+    )?))
+}
+
+/// (return, success) of each of `settings.episodes` episodes of a policy file, in episode order
+/// (episode `i` starts from [`episode_seed`]`(settings.seed, i)`), so that two policies can be
+/// compared start by start. Calls `on_episode` after each.
+pub fn episode_outcomes(
+    file: &[u8],
+    scene: &Scene,
+    settings: &EvalSettings,
+    on_episode: &(dyn Fn() + Sync),
+) -> Result<Vec<(f64, bool)>, EvalError> {
     if settings.episodes == 0 {
         return Err(EvalError::NoEpisodes);
     }
@@ -176,7 +203,8 @@ pub fn evaluate_policy_file(
     let view = decode_jaco_policy(aligned.as_bytes())?;
     let next = AtomicU32::new(0);
     let threads = settings.threads.clamp(1, settings.episodes as usize);
-    let results: Vec<Result<Vec<(f64, bool)>, EvalError>> = std::thread::scope(|s| {
+    type Outcomes = Vec<(u32, (f64, bool))>;
+    let results: Vec<Result<Outcomes, EvalError>> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
             .map(|_| {
                 s.spawn(|| {
@@ -189,12 +217,10 @@ pub fn evaluate_policy_file(
                             return Ok(out);
                         }
                         let seed = episode_seed(settings.seed, u64::from(i));
-                        out.push(run_episode(
-                            &mut mlp,
-                            &mut env,
-                            seed,
-                            settings.can_quantisation,
-                        )?);
+                        out.push((
+                            i,
+                            run_episode(&mut mlp, &mut env, seed, settings.can_quantisation)?,
+                        ));
                         on_episode();
                     }
                 })
@@ -205,22 +231,12 @@ pub fn evaluate_policy_file(
             .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
             .collect()
     });
-    let mut successes = 0u32;
-    let mut total = 0.0;
-    let mut n = 0u32;
+    let mut all = Vec::with_capacity(settings.episodes as usize);
     for r in results {
-        for (ret, ok) in r? {
-            n += 1;
-            total += ret;
-            successes += u32::from(ok);
-        }
+        all.extend(r?);
     }
-    Ok(PolicyEval {
-        episodes: n,
-        successes,
-        mean_return: total / f64::from(n.max(1)),
-        ci95: wilson_interval(successes, n),
-    })
+    all.sort_by_key(|&(i, _)| i);
+    Ok(all.into_iter().map(|(_, o)| o).collect())
 }
 
 /// Start seed of the held-out observation episodes: far from the evaluation seeds (`trainer eval`

@@ -130,3 +130,60 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     let _ = std::fs::remove_file(&cfg);
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn quantisation_aware_run_exports_int8_without_loss() {
+    let out = std::env::temp_dir().join(format!("dex-cli-qat-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let out_s = out.to_str().unwrap();
+    let o = trainer(&[
+        "train",
+        "--task",
+        "reach",
+        "--transitions",
+        "200",
+        "--hidden",
+        "16,16",
+        "--quantise-aware-from",
+        "100",
+        "--checkpoint-every",
+        "50",
+        "--final-eval-episodes",
+        "2",
+        "--select-best-episodes",
+        "2",
+        "--quiet",
+        "--out",
+        out_s,
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    // Only checkpoints of the quantised phase are candidates for export.
+    let selections: Vec<u64> = t
+        .lines()
+        .filter_map(|l| l.split("selection at ").nth(1))
+        .filter_map(|l| l.split(' ').next()?.parse().ok())
+        .collect();
+    assert!(
+        !selections.is_empty() && selections.iter().all(|&n| n >= 100),
+        "{t}"
+    );
+    let seed = out.join("seed-0");
+    let trained = std::fs::read(seed.join("policy.dxpl")).unwrap();
+    let aligned = dex_runtime::testkit::aligned_copy(&trained);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes()).unwrap();
+    assert!(dex_trainer::export::is_on_int8_grid(&view).unwrap());
+
+    // `trainer export --int8` re-exports the same f32 policy and quantises it as it is.
+    let o = trainer(&["export", out_s, "--int8"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let t = text(&o);
+    assert!(t.contains("on the int8 grid"), "{t}");
+    assert!(!t.contains("warning"), "{t}");
+    assert_eq!(std::fs::read(seed.join("policy.dxpl")).unwrap(), trained);
+    let int8 = std::fs::read(seed.join("policy-int8.dxpl")).unwrap();
+    let aligned = dex_runtime::testkit::aligned_copy(&int8);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes()).unwrap();
+    assert_eq!(view.header().version, 2);
+    let _ = std::fs::remove_dir_all(&out);
+}

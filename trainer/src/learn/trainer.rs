@@ -410,8 +410,15 @@ impl Trainer {
             let d = self.nets.obs_dim.min(x.len());
             n.apply_rows(&mut x[..d]);
         }
-        let params = self.policy_params()?;
-        let out = self.nets.actor.forward(&params, &x, 1, &mut s)?;
+        // Once quantisation-aware, the int8-grid actor (no normaliser then, see `validate`).
+        let grid;
+        let params = if self.quantisation_aware() {
+            grid = self.policy_params()?;
+            &grid[..]
+        } else {
+            &self.shared.actor[..]
+        };
+        let out = self.nets.actor.forward(params, &x, 1, &mut s)?;
         let n = action.len().min(out.len());
         action[..n].copy_from_slice(&out[..n]);
         Ok(())

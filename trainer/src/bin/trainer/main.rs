@@ -170,10 +170,12 @@ struct ExportArgs {
     /// Output file (default RUN/seed-S/policy.dxpl, with --int8 RUN/seed-S/policy-int8.dxpl).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Also write an int8 policy (post-training quantisation after input folding and cross-layer
-    /// equalisation calibrated on 20 episodes from seed 8,000,000: per-output-channel symmetric
-    /// weight scales, int32 accumulation in the runtime; format version 2), evaluated like the f32 one.
-    /// The f32 policy still goes to RUN/seed-S/policy.dxpl.
+    /// Also write an int8 policy (format version 2: per-output-channel symmetric weight scales,
+    /// int32 accumulation in the runtime), evaluated like the f32 one, with its worst action error
+    /// against the f32 policy on held-out observations. A quantisation-aware trained policy is
+    /// quantised as it is; any other first gets input folding and cross-layer equalisation
+    /// calibrated on 20 episodes from seed 8,000,000. The f32 policy still goes to
+    /// RUN/seed-S/policy.dxpl.
     #[arg(long)]
     int8: bool,
 }
@@ -186,7 +188,11 @@ fn export_int8(
     out: &std::path::Path,
     settings: &config::TrainSettings,
 ) -> anyhow::Result<()> {
-    use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
+    use dex_trainer::evaluate::{
+        EvalSettings, HELDOUT_SEED, action_error, evaluate_policy_file, heldout_observations,
+    };
+    /// Held-out episodes per policy of the reported action error.
+    const HELDOUT_EPISODES: u32 = 10;
     use dex_trainer::export::{calibration_observations, quantise_policy_file_calibrated};
     let f32_file =
         std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
@@ -195,10 +201,41 @@ fn export_int8(
     let env = settings.reward.env_config(settings.task.task());
     let calibration = calibration_observations(&f32_file, &scene, env)?;
     let (draft, change) = quantise_policy_file_calibrated(&f32_file, None, &calibration)?;
+    let aligned = dex_runtime::testkit::aligned_copy(&f32_file);
+    if dex_trainer::export::is_on_int8_grid(&dex_policy::PolicyView::decode(aligned.as_bytes())?)? {
+        println!(
+            "the f32 weights are on the int8 grid (quantisation-aware training): quantised as they are"
+        );
+    } else {
+        println!(
+            "equalised on {} calibration observations (f32 function change {change:.2e} of a joint's range)",
+            calibration.len()
+        );
+    }
+    // The int8 file's worst action error against the f32 file on held-out observations.
+    let mut heldout = heldout_observations(&f32_file, &scene, env, HELDOUT_EPISODES, HELDOUT_SEED)?;
+    heldout.extend(heldout_observations(
+        &draft,
+        &scene,
+        env,
+        HELDOUT_EPISODES,
+        HELDOUT_SEED,
+    )?);
+    let worst = action_error(&f32_file, &draft, &heldout)?
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
     println!(
-        "equalised on {} calibration observations (f32 function change {change:.2e} of a joint's range)",
-        calibration.len()
+        "int8 against f32 on {} held-out observations: worst action error {:.3}% of a joint's range",
+        heldout.len(),
+        worst * 100.0
     );
+    if worst > 0.01 {
+        println!(
+            "warning: over 1% - the policy was not trained for int8; train it with \
+             `--quantise-aware-from` (docs/training.md, \"Training for int8\")"
+        );
+    }
     let eval_settings = EvalSettings {
         env,
         episodes: settings.final_eval_episodes,

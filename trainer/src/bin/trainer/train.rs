@@ -309,13 +309,7 @@ fn train_seed(
     }
     pb.finish();
     let out = dir.join("policy.dxpl");
-    let eval = match read_best(&dir)? {
-        Some((params, best)) => {
-            let (net, _) = trainer.actor();
-            export_and_evaluate(net, &params, None, best.transitions, s, seed, &out, scene)?
-        }
-        None => export_checkpoint_trainer(&trainer, s, seed, &out, scene)?,
-    };
+    let eval = export_selected(&trainer, s, seed, &dir, &out, scene)?;
     println!(
         "seed {seed}: exported {} - runtime evaluation {}",
         out.display(),
@@ -327,6 +321,26 @@ fn train_seed(
 /// One line: successes, rate, 95% interval and mean return.
 pub fn describe(e: &PolicyEval) -> String {
     format!("success {e}")
+}
+
+/// Exports the policy of a seed's run folder `dir`: the best checkpoint on the selection starts
+/// (`best_actor.bin`) when there is one, else the trainer's current actor; evaluates the file and
+/// writes it (see [`export_and_evaluate`]).
+fn export_selected(
+    trainer: &Trainer,
+    s: &TrainSettings,
+    seed: u64,
+    dir: &Path,
+    out: &Path,
+    scene: &Scene,
+) -> anyhow::Result<PolicyEval> {
+    match read_best(dir)? {
+        Some((params, best)) => {
+            let (net, _) = trainer.actor();
+            export_and_evaluate(net, &params, None, best.transitions, s, seed, out, scene)
+        }
+        None => export_checkpoint_trainer(trainer, s, seed, out, scene),
+    }
 }
 
 /// Exports the trainer's actor, evaluates the file through the runtime, and writes the file with the
@@ -508,7 +522,8 @@ fn export_and_evaluate(
     Ok(eval)
 }
 
-/// `trainer export`: the latest checkpoint of a seed as a policy file.
+/// `trainer export`: the policy `trainer train` exports for a seed (the best checkpoint on the
+/// selection starts, else the latest checkpoint) as a policy file.
 pub fn export_checkpoint(
     dir: &Path,
     s: &TrainSettings,
@@ -519,7 +534,7 @@ pub fn export_checkpoint(
     let trainer =
         Trainer::load(&ckpt).with_context(|| format!("cannot read {}", ckpt.display()))?;
     let scene = load_scene()?;
-    let eval = export_checkpoint_trainer(&trainer, s, seed, out, &scene)?;
+    let eval = export_selected(&trainer, s, seed, dir, out, &scene)?;
     println!("runtime evaluation {}", describe(&eval));
     Ok(())
 }
