@@ -18,6 +18,8 @@
 #   6. the default-size policy quantised to int8 (format version 2, `fw-host make-policy ... int8`) run by
 #      the runtime's int8 evaluator: equal to the host twin, action error against the f32 run at most 1%
 #      of each joint's range, instructions within budget. (Step 1 also checks the int8 golden.)
+#   7. a trained policy (trainer/tests/fixtures/reach_int8_seed0.dxpl, Reach, trained for int8) and its
+#      int8 twin (`policy quantise`): both equal to the host twin, int8 within 1% of the f32 actions.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -129,9 +131,29 @@ print(f"   {what}: all {len(want)} action values bit-identical to {golden.split(
 EOF
 }
 
+# check_error F32_LOG INT8_LOG WHAT: the int8 run's actions within 1% of each joint's range of the f32
+# run's, step by step.
+check_error() {
+    python3 - "$1" "$2" "$3" <<'EOF' || die "$3: action error above 1% of a joint's range"
+import struct, sys
+def rows(path, tag):
+    return {int(l.split()[1]): [struct.unpack("<f", struct.pack("<I", int(x, 16)))[0] for x in l.split()[2:]]
+            for l in open(path) if l.startswith(tag + " ")}
+ref, got, joints = rows(sys.argv[1], "A"), rows(sys.argv[2], "A"), rows(sys.argv[1], "J")
+worst = [0.0] * len(joints)
+for step, a in ref.items():
+    for k, (x, y) in enumerate(zip(a, got[step])):
+        lo, hi = joints[k]
+        worst[k] = max(worst[k], abs(x - y) / (hi - lo))
+print("   %s max action error vs f32, %% of joint range: " % sys.argv[3] + " ".join("%.3f" % (100 * w) for w in worst)
+      + " (worst %.3f%%, %d steps)" % (100 * max(worst), len(ref)))
+sys.exit(1 if max(worst) > 0.01 else 0)
+EOF
+}
+
 # --- 1. golden policy ----------------------------------------------------------------------------
 GOLDEN="$ROOT/runtime/tests/golden"
-step "1/6 golden 44-64-64-9 policy on mps2-an386"
+step "1/7 golden 44-64-64-9 policy on mps2-an386"
 build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
 rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
 expect_ok "$rc" "$WORK/golden.log" golden
@@ -146,7 +168,7 @@ host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
 same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
 
 # --- 2. default-size policy, budget and footprint -------------------------------------------------
-step "2/6 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
+step "2/7 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
 (cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
 "$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
     die "make-policy failed"
@@ -200,7 +222,7 @@ arm-none-eabi-size -A "$WORK/p256.elf" | awk -v pol="$policy_bytes" -v tr="$trac
     }'
 
 # --- 3. second board ------------------------------------------------------------------------------
-step "3/6 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
+step "3/7 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
 build_fw "$WORK/nd.elf" "$WORK/jaco_256.dxpl" netduinoplus2
 rc=$(run_qemu "$WORK/nd.elf" netduinoplus2 "$WORK/nd.log")
 expect_ok "$rc" "$WORK/nd.log" netduinoplus2
@@ -217,7 +239,7 @@ if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
 fi
 
 # --- 4. corrupted policy: the fault state ---------------------------------------------------------
-step "4/6 corrupted policy file: fault state, non-zero exit, no hang"
+step "4/7 corrupted policy file: fault state, non-zero exit, no hang"
 python3 - "$GOLDEN/jaco_64.dxpl" "$WORK/corrupt.dxpl" <<'EOF'
 import sys
 b = bytearray(open(sys.argv[1], "rb").read())
@@ -232,7 +254,7 @@ grep -q '^[AC] ' "$WORK/corrupt.log" && die "corrupted policy: actions were prod
 echo "   $(grep '^FAULT' "$WORK/corrupt.log") (exit $rc)"
 
 # --- 5. HardFault -----------------------------------------------------------------------------------
-step "5/6 HardFault handler exits non-zero"
+step "5/7 HardFault handler exits non-zero"
 build_fw "$WORK/hardfault.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features hardfault-test
 rc=$(run_qemu "$WORK/hardfault.elf" mps2-an386 "$WORK/hardfault.log")
 [ "$rc" = 1 ] || die "hardfault test: exit status $rc, want 1 (124 = hang)"
@@ -240,7 +262,7 @@ grep -q '^FAULT hardfault' "$WORK/hardfault.log" || die "hardfault test: no FAUL
 echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
 
 # --- 6. int8 policy file ---------------------------------------------------------------------------
-step "6/6 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
+step "6/7 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
 "$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256_int8.dxpl" int8 2>/dev/null ||
     die "make-policy int8 failed"
 build_fw "$WORK/int8.elf" "$WORK/jaco_256_int8.dxpl" mps2-an386
@@ -249,21 +271,7 @@ expect_ok "$rc" "$WORK/int8.log" int8
 host_ref "$WORK/int8.host" "$WORK/jaco_256_int8.dxpl"
 same_as_host "$WORK/int8.log" "$WORK/int8.host" int8
 grep -E '^(H|I|S peak) ' "$WORK/int8.log" | sed 's/^/   /'
-python3 - "$WORK/p256.log" "$WORK/int8.log" <<'EOF' || die "int8: action error above 1% of a joint's range"
-import struct, sys
-def rows(path, tag):
-    return {int(l.split()[1]): [struct.unpack("<f", struct.pack("<I", int(x, 16)))[0] for x in l.split()[2:]]
-            for l in open(path) if l.startswith(tag + " ")}
-ref, got, joints = rows(sys.argv[1], "A"), rows(sys.argv[2], "A"), rows(sys.argv[1], "J")
-worst = [0.0] * len(joints)
-for step, a in ref.items():
-    for k, (x, y) in enumerate(zip(a, got[step])):
-        lo, hi = joints[k]
-        worst[k] = max(worst[k], abs(x - y) / (hi - lo))
-print("   int8 max action error vs f32, % of joint range: " + " ".join("%.3f" % (100 * w) for w in worst)
-      + " (worst %.3f%%, %d steps)" % (100 * max(worst), len(ref)))
-sys.exit(1 if max(worst) > 0.01 else 0)
-EOF
+check_error "$WORK/p256.log" "$WORK/int8.log" int8
 int8_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
 int8_ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
 [ -n "$int8_max" ] && [ -n "$int8_ctrl_max" ] || die "int8: no instruction count"
@@ -280,5 +288,22 @@ arm-none-eabi-size -A "$WORK/int8.elf" | awk -v pol="$int8_bytes" -v tr="$trace_
             s[".vector_table"] + s[".text"] + s[".rodata"] + s[".data"], s[".vector_table"], s[".text"], s[".rodata"],
             pol, tr, s[".rodata"] - pol - tr, s[".data"]
     }'
+
+# --- 7. a trained policy and its int8 twin ---------------------------------------------------------
+step "7/7 trained Reach policy (trained for int8) and its int8 twin on mps2-an386"
+TRAINED="$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl"
+(cd "$ROOT" && cargo run --quiet --locked -p dex-policy --features cli --bin policy -- \
+    quantise "$TRAINED" "$WORK/trained_int8.dxpl" | sed 's/^/   /') || die "policy quantise failed"
+for name in trained trained_int8; do
+    policy="$TRAINED"
+    [ "$name" = trained_int8 ] && policy="$WORK/trained_int8.dxpl"
+    build_fw "$WORK/$name.elf" "$policy" mps2-an386
+    rc=$(run_qemu "$WORK/$name.elf" mps2-an386 "$WORK/$name.log")
+    expect_ok "$rc" "$WORK/$name.log" "$name"
+    host_ref "$WORK/$name.host" "$policy"
+    same_as_host "$WORK/$name.log" "$WORK/$name.host" "$name"
+    grep -E '^(I|S peak) ' "$WORK/$name.log" | sed "s/^/   $name: /"
+done
+check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"
 
 echo "firmware-check: OK"

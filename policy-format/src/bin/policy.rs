@@ -1,7 +1,8 @@
-//! `policy`: inspect and verify policy files.
+//! `policy`: inspect, verify and quantise policy files.
 //!
 //! `policy inspect FILE` prints metadata, sizes and the checksum; `policy verify FILE` checks the file
-//! and exits non-zero with the reason when it is not valid.
+//! and exits non-zero with the reason when it is not valid; `policy quantise IN OUT` writes the int8
+//! twin of an f32 file (format version 2).
 
 use std::path::PathBuf;
 
@@ -13,7 +14,7 @@ use dex_policy::{Activation, LayerDtype, PolicyView};
 #[command(
     name = "policy",
     version,
-    about = "Inspect and verify dexterous-stack policy files"
+    about = "Inspect, verify and quantise dexterous-stack policy files"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -31,6 +32,18 @@ enum Command {
     Verify {
         /// Policy file (.dxpl).
         file: PathBuf,
+    },
+    /// Write the int8 twin of a policy file: every f32 layer quantised per output channel
+    /// (`scale = max |w| / 127`, format version 2), the rest copied; the success rate in the
+    /// provenance belonged to the f32 weights and is cleared. Lossless up to the runtime's int16
+    /// activations for a policy trained for int8 (`trainer train --quantise-aware-from`); for any
+    /// other, `trainer export --int8` (calibrated equalisation first, error measured) is the better
+    /// tool.
+    Quantise {
+        /// f32 policy file (.dxpl).
+        input: PathBuf,
+        /// Output file.
+        output: PathBuf,
     },
 }
 
@@ -115,10 +128,56 @@ fn inspect(bytes: &[u8]) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `policy quantise`.
+fn quantise(input: &PathBuf, output: &PathBuf) -> anyhow::Result<()> {
+    let bytes = read(input)?;
+    let view = PolicyView::decode(&bytes).context("invalid policy file")?;
+    let values = view.values();
+    let mut on_grid = true;
+    let mut f32_layers = 0;
+    for l in view.layers() {
+        if l.dtype == LayerDtype::F32 {
+            f32_layers += 1;
+            let w: Vec<f32> = (l.weights..l.weights + l.inputs * l.outputs)
+                .map(|k| values.get(k).context("malformed weights"))
+                .collect::<anyhow::Result<_>>()?;
+            on_grid &= dex_policy::int8::on_grid(l.inputs, l.outputs, &w);
+        }
+    }
+    let provenance = dex_policy::Provenance {
+        success_rate: None,
+        eval_episodes: 0,
+        ..view.body().provenance
+    };
+    let out = dex_policy::int8::quantise_policy(&view, |_| true, Some(provenance))?;
+    std::fs::write(output, &out).with_context(|| format!("cannot write {}", output.display()))?;
+    let q = PolicyView::decode(&out).context("quantised file")?;
+    println!(
+        "wrote {} (format version {}, weights {} bytes, f32 {}; {} bytes in all)",
+        output.display(),
+        q.header().version,
+        q.weight_bytes(),
+        view.weight_bytes(),
+        out.len()
+    );
+    if f32_layers == 0 {
+        println!("the file was already int8: copied");
+    } else if on_grid {
+        println!("the f32 weights were on the int8 grid: the int8 weights are the same numbers");
+    } else {
+        println!(
+            "note: the f32 weights were not on the int8 grid (not trained for int8): expect a larger \
+             action error; `trainer export --int8` equalises first and measures it"
+        );
+    }
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Inspect { file } => inspect(&read(&file)?),
+        Command::Quantise { input, output } => quantise(&input, &output),
         Command::Verify { file } => {
             let bytes = read(&file)?;
             match PolicyView::decode(&bytes) {
