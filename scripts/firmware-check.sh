@@ -106,6 +106,17 @@ same_as_host() {
     echo "   $3: $n action lines bit-identical to the host twin"
 }
 
+# run_policy NAME POLICY WHAT: POLICY on mps2-an386 into $WORK/NAME.log, ends well, and equals the host
+# twin's report ($WORK/NAME.host).
+run_policy() {
+    local name=$1 policy=$2 what=$3 rc
+    build_fw "$WORK/$name.elf" "$policy" mps2-an386
+    rc=$(run_qemu "$WORK/$name.elf" mps2-an386 "$WORK/$name.log")
+    expect_ok "$rc" "$WORK/$name.log" "$what"
+    host_ref "$WORK/$name.host" "$policy"
+    same_as_host "$WORK/$name.log" "$WORK/$name.host" "$what"
+}
+
 # check_golden LOG ACTIONS.f32 WHAT: every A line equals the golden actions bit for bit.
 check_golden() {
     python3 - "$1" "$2" "$3" <<'EOF' || die "$3: actions differ from $(basename "$2")"
@@ -172,11 +183,7 @@ step "2/7 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instruc
 (cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
 "$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
     die "make-policy failed"
-build_fw "$WORK/p256.elf" "$WORK/jaco_256.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/p256.elf" mps2-an386 "$WORK/p256.log")
-expect_ok "$rc" "$WORK/p256.log" "44-256-256-9"
-host_ref "$WORK/p256.host" "$WORK/jaco_256.dxpl"
-same_as_host "$WORK/p256.log" "$WORK/p256.host" "44-256-256-9"
+run_policy p256 "$WORK/jaco_256.dxpl" "44-256-256-9"
 grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
 
 BUDGET="$FW/budget.txt"
@@ -231,11 +238,7 @@ same_as_host "$WORK/nd.log" "$WORK/p256.host" netduinoplus2
 if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
     step "extra policy $FIRMWARE_EXTRA_POLICY on mps2-an386"
     extra=$(cd "$ROOT" && realpath "$FIRMWARE_EXTRA_POLICY")
-    build_fw "$WORK/extra.elf" "$extra" mps2-an386
-    rc=$(run_qemu "$WORK/extra.elf" mps2-an386 "$WORK/extra.log")
-    expect_ok "$rc" "$WORK/extra.log" "extra policy"
-    host_ref "$WORK/extra.host" "$extra"
-    same_as_host "$WORK/extra.log" "$WORK/extra.host" "extra policy"
+    run_policy extra "$extra" "extra policy"
 fi
 
 # --- 4. corrupted policy: the fault state ---------------------------------------------------------
@@ -265,11 +268,7 @@ echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
 step "6/7 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
 "$FW/target/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256_int8.dxpl" int8 2>/dev/null ||
     die "make-policy int8 failed"
-build_fw "$WORK/int8.elf" "$WORK/jaco_256_int8.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/int8.elf" mps2-an386 "$WORK/int8.log")
-expect_ok "$rc" "$WORK/int8.log" int8
-host_ref "$WORK/int8.host" "$WORK/jaco_256_int8.dxpl"
-same_as_host "$WORK/int8.log" "$WORK/int8.host" int8
+run_policy int8 "$WORK/jaco_256_int8.dxpl" int8
 grep -E '^(H|I|S peak) ' "$WORK/int8.log" | sed 's/^/   /'
 check_error "$WORK/p256.log" "$WORK/int8.log" int8
 int8_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
@@ -294,14 +293,9 @@ step "7/7 trained Reach policy (trained for int8) and its int8 twin on mps2-an38
 TRAINED="$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl"
 (cd "$ROOT" && cargo run --quiet --locked -p dex-policy --features cli --bin policy -- \
     quantise "$TRAINED" "$WORK/trained_int8.dxpl" | sed 's/^/   /') || die "policy quantise failed"
+run_policy trained "$TRAINED" trained
+run_policy trained_int8 "$WORK/trained_int8.dxpl" trained_int8
 for name in trained trained_int8; do
-    policy="$TRAINED"
-    [ "$name" = trained_int8 ] && policy="$WORK/trained_int8.dxpl"
-    build_fw "$WORK/$name.elf" "$policy" mps2-an386
-    rc=$(run_qemu "$WORK/$name.elf" mps2-an386 "$WORK/$name.log")
-    expect_ok "$rc" "$WORK/$name.log" "$name"
-    host_ref "$WORK/$name.host" "$policy"
-    same_as_host "$WORK/$name.log" "$WORK/$name.host" "$name"
     grep -E '^(I|S peak) ' "$WORK/$name.log" | sed "s/^/   $name: /"
 done
 check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"

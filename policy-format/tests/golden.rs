@@ -11,7 +11,7 @@ fn generator_still_produces_the_committed_bytes() {
     assert_eq!(
         fresh, GOLDEN,
         "encoding changed: if intended, bump FORMAT_VERSION, update docs/policy-format.md and re-bless with \
-         `cargo run -p dex-policy --example make_golden`"
+         `cargo run -p dex-policy --example make_format_golden`"
     );
 }
 

@@ -30,7 +30,7 @@ fn generator_still_produces_the_committed_int8_bytes() {
         golden_small_int8().unwrap(),
         GOLDEN_INT8,
         "int8 encoding changed: if intended, update docs/policy-format.md and re-bless with \
-         `cargo run -p dex-policy --features std --example make_golden`"
+         `cargo run -p dex-policy --features std --example make_format_golden`"
     );
 }
 

@@ -69,6 +69,22 @@ pub struct QuantisedCopy {
 }
 
 impl QuantisedCopy {
+    /// `params` (whose version is `version`) as the learner uses it now: its quantised copy when
+    /// `aware`, else `params` itself.
+    pub fn select<'a>(
+        &'a mut self,
+        aware: bool,
+        net: &Mlp,
+        params: &'a [f32],
+        version: u64,
+    ) -> Result<&'a [f32], LearnError> {
+        if aware {
+            self.get(net, params, version)
+        } else {
+            Ok(params)
+        }
+    }
+
     /// The quantised `params` (whose version is `version`), recomputed if stale.
     pub fn get(&mut self, net: &Mlp, params: &[f32], version: u64) -> Result<&[f32], LearnError> {
         if self.version != Some(version) || self.params.len() != params.len() {
@@ -162,6 +178,9 @@ mod tests {
         assert_eq!(cache.get(&net, &p, 1).unwrap(), &first[..]);
         assert_ne!(cache.get(&net, &p, 2).unwrap(), &first[..]);
         assert!(fake_quantise(&net, &p[1..], &mut vec![0.0; p.len()]).is_err());
+        // Not quantisation-aware: the parameters themselves.
+        assert_eq!(cache.select(false, &net, &p, 3).unwrap(), &p[..]);
+        assert_ne!(cache.select(true, &net, &p, 3).unwrap(), &p[..]);
     }
 
     #[test]

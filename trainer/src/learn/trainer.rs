@@ -744,15 +744,13 @@ fn worker_loop<E: Env>(
         if norm_on {
             local.norm.apply_rows(&mut obs_n);
         }
-        let aware = ctx.quantisation_aware();
         // The actor as the worker uses it: its int8-grid version once quantisation-aware.
-        let params = if aware {
-            local
-                .actor_q
-                .get(&nets.actor, &local.actor, local.versions[0])?
-        } else {
-            &local.actor
-        };
+        let params = local.actor_q.select(
+            ctx.quantisation_aware(),
+            &nets.actor,
+            &local.actor,
+            local.versions[0],
+        )?;
         let mean = nets
             .actor
             .forward(params, &obs_n, 1, &mut local.act_scratch)?;
@@ -797,13 +795,12 @@ fn worker_loop<E: Env>(
             if every > 0 && n.is_multiple_of(every) {
                 let index = n / every;
                 let mut rng = Rng::derive(cfg.seed, STREAM_EVAL + index);
-                let params = if ctx.quantisation_aware() {
-                    local
-                        .actor_q
-                        .get(&nets.actor, &local.actor, local.versions[0])?
-                } else {
-                    &local.actor
-                };
+                let params = local.actor_q.select(
+                    ctx.quantisation_aware(),
+                    &nets.actor,
+                    &local.actor,
+                    local.versions[0],
+                )?;
                 let (mean_return, success_rate) = evaluate(
                     &nets.actor,
                     params,
@@ -904,13 +901,10 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
     // Quantisation-aware: the target actor and the actor are used with int8-grid weights; the
     // actor's gradient (taken at the quantised weights) updates the f32 weights (straight-through).
     let aware = ctx.quantisation_aware();
-    let target_actor = if aware {
+    let target_actor =
         local
             .target_actor_q
-            .get(&nets.actor, &local.target_actor, local.versions[2])?
-    } else {
-        &local.target_actor
-    };
+            .select(aware, &nets.actor, &local.target_actor, local.versions[2])?;
     critic_gradient(
         nets,
         cfg.ddpg.gamma,
@@ -933,13 +927,9 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         local.critic.copy_from_slice(&c.params);
         local.versions[1] = c.version;
     }
-    let actor = if aware {
-        local
-            .actor_q
-            .get(&nets.actor, &local.actor, local.versions[0])?
-    } else {
-        &local.actor
-    };
+    let actor = local
+        .actor_q
+        .select(aware, &nets.actor, &local.actor, local.versions[0])?;
     actor_gradient(nets, actor, &local.critic, &mut local.bufs)?;
     let t = cfg.ddpg.target;
     let u = {

@@ -1,5 +1,5 @@
 //! Writes the committed golden policy files. Run after an intentional format change:
-//! `cargo run -p dex-policy --features std --example make_golden`
+//! `cargo run -p dex-policy --features std --example make_format_golden`
 //! then review the diff and bump the format version if the bytes changed (docs/policy-format.md).
 //!
 //! - `small.dxpl`: version 1 (all-f32), the compatibility fixture; its bytes must never change.
