@@ -52,3 +52,41 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
     assert_eq!(report.success, success);
     assert_eq!(report.steps_without_action, 0);
 }
+
+#[test]
+fn trained_int8_policy_over_the_bus_scores_like_trainer_eval() {
+    // The Reach policy trained for int8, quantised as `policy quantise` / `trainer export --int8`
+    // do, runs behind the CAN interface with the MuJoCo plant: every episode's return and success
+    // equal what `trainer eval` measures for the same start seeds (CAN quantisation on).
+    use dex_trainer::env::{EnvConfig, Scene};
+    use dex_trainer::evaluate::{EvalSettings, episode_outcomes, episode_seed};
+    let trained = aligned_copy(include_bytes!(
+        "../../trainer/tests/fixtures/reach_int8_seed0.dxpl"
+    ));
+    let view = PolicyView::decode(trained.as_bytes()).unwrap();
+    let int8 = dex_policy::int8::quantise_policy(&view, |_| true, None).unwrap();
+    let episodes = 4;
+    let seeds: Vec<(u64, u32)> = (0..episodes)
+        .map(|i| (episode_seed(1_000_000, i), u32::MAX))
+        .collect();
+    let mut plant = MujocoPlant::new(Task::Reach).unwrap();
+    let (_, reports) = common::lockstep_over_the_bus(&int8, &mut plant, &seeds);
+    let settings = EvalSettings {
+        env: EnvConfig::new(Task::Reach),
+        episodes: episodes as u32,
+        seed: 1_000_000,
+        threads: 1,
+        can_quantisation: true,
+    };
+    let expected = episode_outcomes(&int8, &Scene::load().unwrap(), &settings, &|| {}).unwrap();
+    assert_eq!(reports.len(), expected.len());
+    for (r, (ret, success)) in reports.iter().zip(&expected) {
+        assert_eq!(r.episode_return.to_bits(), ret.to_bits());
+        assert_eq!(r.success, *success);
+        assert_eq!(r.steps_without_action, 0);
+    }
+    assert!(
+        reports.iter().any(|r| r.success),
+        "a trained policy reaches"
+    );
+}
