@@ -44,8 +44,9 @@ pub struct Figure {
     pub runs: Vec<FigureRun>,
 }
 
-/// Reads and checks a figure file (every run's config must load and validate).
-pub fn load(path: &Path) -> anyhow::Result<Figure> {
+/// Reads and checks a figure file: every run's config must load and validate; returns the figure
+/// and each run's settings (in the order of `runs`).
+pub fn load(path: &Path) -> anyhow::Result<(Figure, Vec<config::TrainSettings>)> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let fig: Figure = toml::from_str(&text)
@@ -56,12 +57,16 @@ pub fn load(path: &Path) -> anyhow::Result<Figure> {
             path.display()
         );
     }
-    for r in &fig.runs {
-        config::load(Some(&r.config))
-            .and_then(|s| s.validate())
-            .with_context(|| format!("run `{}` of {}", r.label, path.display()))?;
-    }
-    Ok(fig)
+    let settings = fig
+        .runs
+        .iter()
+        .map(|r| {
+            config::load(Some(&r.config))
+                .and_then(|s| s.validate().map(|()| s))
+                .with_context(|| format!("run `{}` of {}", r.label, path.display()))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    Ok((fig, settings))
 }
 
 /// `trainer figure`: trains the figure's runs (unless `plot_only`), then plots them together.
@@ -71,7 +76,7 @@ pub fn figure(path: &Path, overrides: &TrainArgs, plot_only: bool) -> anyhow::Re
     if overrides.out.is_some() || overrides.config.is_some() {
         bail!("a figure's runs keep their own config files and output folders");
     }
-    let fig = load(path)?;
+    let (fig, settings) = load(path)?;
     if !plot_only {
         let stop = train::stop_flag()?;
         for r in &fig.runs {
@@ -87,8 +92,7 @@ pub fn figure(path: &Path, overrides: &TrainArgs, plot_only: bool) -> anyhow::Re
     }
     let mut conditions = Vec::new();
     let mut per_worker = false;
-    for r in &fig.runs {
-        let s = config::load(Some(&r.config))?;
+    for (r, s) in fig.runs.iter().zip(&settings) {
         per_worker |= s.run.workers > 1;
         match train::read_run(&s.out) {
             Ok((seeds, _)) => conditions.push(Condition {
