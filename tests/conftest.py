@@ -28,6 +28,10 @@ ACTION_MESSAGES = [DB.get_message_by_name(f"ACTION_{k}") for k in range(3)]
 HEAD = {"crc", "alive_counter", "sample_counter"}
 OBS_SIGNALS = [s.name for m in OBS_MESSAGES for s in m.signals if s.name not in HEAD]
 NMT_START, NMT_STOP, NMT_PREOP = 0x01, 0x02, 0x80
+# Command limits of the action joints (+-, rad/s), as in can/jaco.dbc.
+LIMITS = {f"arm_joint_{i}": 0.628 for i in (1, 2, 3)}
+LIMITS.update({f"arm_joint_{i}": 0.838 for i in (4, 5, 6)})
+LIMITS.update({f"finger_{i}": 5.0 for i in (1, 2, 3)})
 OPERATIONAL, PREOP, STOPPED = 0x05, 0x7F, 0x04
 
 
@@ -68,7 +72,12 @@ def policies(hil_sim, tmp_path_factory):
         [hil_sim, "make-policy", "--out", other, "--hidden", "32,32", "--seed", "2"], check=True
     )
     subprocess.run([hil_sim, "make-policy", "--out", bad, "--mismatched-layout"], check=True)
-    return {"good": good, "other": other, "mismatched": bad}
+    int8 = d / "jaco_32_int8.dxpl"
+    subprocess.run(
+        [hil_sim, "make-policy", "--out", int8, "--hidden", "32,32", "--seed", "2", "--int8"],
+        check=True,
+    )
+    return {"good": good, "other": other, "mismatched": bad, "int8": int8}
 
 
 class Sim:

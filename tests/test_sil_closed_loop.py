@@ -5,11 +5,7 @@ import math
 import subprocess
 import time
 
-from conftest import PERIOD, PlantTx, collect, decode_action, observation
-
-LIMITS = {f"arm_joint_{i}": 0.628 for i in (1, 2, 3)}
-LIMITS.update({f"arm_joint_{i}": 0.838 for i in (4, 5, 6)})
-LIMITS.update({f"finger_{i}": 5.0 for i in (1, 2, 3)})
+from conftest import LIMITS, PERIOD, PlantTx, collect, decode_action, observation
 JOINTS = list(LIMITS)
 
 

@@ -6,8 +6,8 @@ import zlib
 import can
 
 from conftest import (
-    NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect, decode_action, nmt,
-    observation, wait_heartbeat,
+    LIMITS, NMT_PREOP, NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect,
+    decode_action, nmt, observation, wait_heartbeat,
 )
 
 REQ, RESP = 0x600 + NODE, 0x580 + NODE
@@ -71,6 +71,36 @@ def test_flash_verify_activate(sim, policies):
     got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x290)
     assert got and got[-1][1].arbitration_id == 0x290  # policy info announced again
     assert runs_policy(bus)
+
+
+def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
+    # The int8 twin (format version 2) of `other`: a quarter of the weight bytes over the bus, and
+    # its commands within 1% of each joint's range of the f32 policy's for the same observation.
+    s = sim("good")
+    bus = s.bus()
+    f32_image = policies["other"].read_bytes()
+    int8_image = policies["int8"].read_bytes()
+    assert int8_image[4:6] == (2).to_bytes(2, "little") and len(int8_image) < len(f32_image)
+    wait_heartbeat(bus, PREOP, 2.0)
+    tx = PlantTx()  # one sender: its E2E counters run on across both activations
+
+    def commands(image):
+        assert flash(bus, image) == OK
+        assert request(bus, [0x04]) == bytes([0x84, OK])
+        assert status(bus) == (0, zlib.crc32(image))
+        nmt(bus, NMT_START)
+        wait_heartbeat(bus, OPERATIONAL, 1.0)
+        tx.send(bus, observation(1))
+        got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x282)
+        nmt(bus, NMT_STOP)
+        wait_heartbeat(bus, STOPPED, 1.0)
+        nmt(bus, NMT_PREOP)  # back to pre-operational for the next activation
+        wait_heartbeat(bus, PREOP, 1.0)
+        return decode_action([m for _, m in got])[tx.sample]
+
+    a, b = commands(f32_image), commands(int8_image)
+    for name, limit in LIMITS.items():
+        assert abs(a[name] - b[name]) <= 0.01 * 2 * limit, (name, a[name], b[name])
 
 
 def test_interrupted_transfer_leaves_the_active_policy(sim, policies):

@@ -125,6 +125,9 @@ enum Command {
         /// Write a policy whose observation layout does not match the controller's.
         #[arg(long)]
         mismatched_layout: bool,
+        /// Quantise every layer to int8 (format version 2), as `policy quantise` does.
+        #[arg(long)]
+        int8: bool,
     },
 }
 
@@ -160,7 +163,8 @@ fn main() -> Result<()> {
             hidden,
             seed,
             mismatched_layout,
-        } => make_policy(&out, &hidden, seed, mismatched_layout),
+            int8,
+        } => make_policy(&out, &hidden, seed, mismatched_layout, int8),
     }
 }
 
@@ -397,7 +401,13 @@ fn bench_command(cycles: usize, realtime: bool, policy: Option<PathBuf>) -> Resu
     Ok(())
 }
 
-fn make_policy(out: &PathBuf, hidden: &[u16], seed: u64, mismatched: bool) -> Result<()> {
+fn make_policy(
+    out: &PathBuf,
+    hidden: &[u16],
+    seed: u64,
+    mismatched: bool,
+    int8: bool,
+) -> Result<()> {
     let bytes = if mismatched {
         use dex_policy::synth::{SynthSpec, synth_policy};
         use dex_runtime::interface::ACTION_JOINTS;
@@ -416,6 +426,13 @@ fn make_policy(out: &PathBuf, hidden: &[u16], seed: u64, mismatched: bool) -> Re
         })?
     } else {
         dex_runtime::testkit::jaco_policy(hidden, seed)?
+    };
+    let bytes = if int8 {
+        let aligned = dex_runtime::testkit::aligned_copy(&bytes);
+        let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
+        dex_policy::int8::quantise_policy(&view, |_| true, None)?
+    } else {
+        bytes
     };
     std::fs::write(out, bytes).with_context(|| format!("writing {}", out.display()))?;
     Ok(())
