@@ -104,7 +104,11 @@ fn quantisation_aware_policy_succeeds_like_its_f32_file_start_by_start() {
     // 300 starts from `trainer eval`'s seed, CAN quantisation on. Outcomes of this task are chaotic:
     // any change of the actions (even 0.2% of a joint's range) flips about one start in ten either
     // way (docs/benchmarks.md), so the check is that int8 does not change the success rate
-    // significantly: McNemar's test on the flipped starts at 5%, and the rates within 3 points.
+    // significantly: McNemar's test on the flipped starts at 1%, and the rates within 4 points
+    // (the spread of 300 such starts is about +-1.7 points; on a machine whose physics rounds
+    // differently the flips are drawn anew, and the check must not fail by chance). On dev-2c:
+    // f32 84.3%, int8 82.3%, flipped 16 / 10. The 2 points is measured over 1,000 starts
+    // in docs/benchmarks.md.
     let scene = Scene::load().unwrap();
     let int8 = quantise_policy_file(TRAINED_FOR_INT8, None).unwrap();
     let settings = EvalSettings {
@@ -131,10 +135,10 @@ fn quantisation_aware_policy_succeeds_like_its_f32_file_start_by_start() {
         "the fixture is a trained policy: f32 success {ra}"
     );
     assert!(
-        (f32_only - int8_only).abs() <= 1.96 * (f32_only + int8_only).sqrt(),
+        (f32_only - int8_only).abs() <= 2.576 * (f32_only + int8_only).sqrt(),
         "int8 changes the outcome significantly: {f32_only} starts lost, {int8_only} won"
     );
-    assert!((rb - ra).abs() <= 0.03, "f32 {ra} vs int8 {rb}");
+    assert!((rb - ra).abs() <= 0.04, "f32 {ra} vs int8 {rb}");
 }
 
 #[test]
