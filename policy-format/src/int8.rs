@@ -63,7 +63,9 @@ pub const fn is_padding(inputs: usize, outputs: usize, index: usize) -> bool {
 }
 
 #[cfg(feature = "std")]
-pub use quantise::{QuantisedLayer, on_grid, pack, quantise_layer, quantise_policy};
+pub use quantise::{
+    QuantisedLayer, on_grid, pack, policy_on_grid, quantise_layer, quantise_policy,
+};
 
 #[cfg(feature = "std")]
 mod quantise {
@@ -126,6 +128,21 @@ mod quantise {
                 (back - w[i * outputs + j]).abs() <= 1e-6 * max
             })
         })
+    }
+
+    /// Whether every f32 layer of a decoded policy lies on the int8 grid ([`on_grid`]; int8 layers
+    /// count as on it): then [`quantise_policy`] loses nothing but the runtime's int16 activations.
+    pub fn policy_on_grid(view: &PolicyView<'_>) -> Result<bool, FormatError> {
+        let values = view.values();
+        for l in view.layers().filter(|l| l.dtype == LayerDtype::F32) {
+            let w = (l.weights..l.weights + l.inputs * l.outputs)
+                .map(|k| values.get(k).ok_or(FormatError::MalformedBody))
+                .collect::<Result<Vec<f32>, _>>()?;
+            if !on_grid(l.inputs, l.outputs, &w) {
+                return Ok(false);
+            }
+        }
+        Ok(true)
     }
 
     /// Packs output-major int8 weights (`q[j * inputs + i]`) into the file's block order, with

@@ -66,6 +66,15 @@ pub fn observation_trace(n: usize, seed: u64) -> Vec<[f32; OBS_DIM]> {
         .collect()
 }
 
+/// Little-endian f32 values of a byte file (a trace or golden actions); a trailing partial value is
+/// ignored.
+pub fn f32s_le(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect()
+}
+
 /// A byte buffer whose start is 8-byte aligned, so a policy's values can be borrowed as `&[f32]`.
 pub fn aligned_copy(bytes: &[u8]) -> AlignedBytes {
     let mut words = std::vec![0u64; bytes.len().div_ceil(8)];

@@ -6,19 +6,14 @@
 use dex_policy::{Activation, CapacityItem, FormatError, LayerDtype, PolicyView, int8};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_runtime::mlp::Mlp;
-use dex_runtime::testkit::{aligned_copy, jaco_policy, jaco_policy_int8, observation_trace};
+use dex_runtime::testkit::{
+    aligned_copy, f32s_le, jaco_policy, jaco_policy_int8, observation_trace,
+};
 use dex_runtime::{Controller, ControllerConfig, MockClock, State};
 
 const POLICY_INT8: &[u8] = include_bytes!("golden/jaco_64_int8.dxpl");
 const TRACE: &[u8] = include_bytes!("golden/obs_trace.f32");
 const ACTIONS_INT8: &[u8] = include_bytes!("golden/actions_64_int8.f32");
-
-fn f32s(bytes: &[u8]) -> Vec<f32> {
-    bytes
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-        .collect()
-}
 
 /// W8A16 written out plainly from the format's definition (i64 sums over `byte_index`), with
 /// the same f32 operations as the runtime in the same order: must give the same bits.
@@ -84,8 +79,8 @@ fn int8_evaluator_reproduces_the_golden_actions_and_the_reference_bit_for_bit() 
     assert_eq!(view.header().version, 2);
     let mut mlp = Mlp::<64>::new(&view).unwrap();
     assert_eq!(mlp.int8_layers(), 3);
-    let trace = f32s(TRACE);
-    let expected = f32s(ACTIONS_INT8);
+    let trace = f32s_le(TRACE);
+    let expected = f32s_le(ACTIONS_INT8);
     assert_eq!(trace.len() / OBS_DIM, expected.len() / ACT_DIM);
     for (n, (obs, want)) in trace
         .chunks_exact(OBS_DIM)

@@ -6,18 +6,11 @@ use dex_policy::{Activation, PolicyView};
 use dex_runtime::EvalError;
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
 use dex_runtime::mlp::Mlp;
-use dex_runtime::testkit::{aligned_copy, jaco_policy, observation_trace};
+use dex_runtime::testkit::{aligned_copy, f32s_le, jaco_policy, observation_trace};
 
 const POLICY: &[u8] = include_bytes!("golden/jaco_64.dxpl");
 const TRACE: &[u8] = include_bytes!("golden/obs_trace.f32");
 const ACTIONS: &[u8] = include_bytes!("golden/actions_64.f32");
-
-fn f32s(bytes: &[u8]) -> Vec<f32> {
-    bytes
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-        .collect()
-}
 
 /// Straightforward f64 evaluation of a policy view (the reference the f32 evaluator must track).
 fn reference(view: &PolicyView<'_>, obs: &[f32]) -> Vec<f64> {
@@ -63,8 +56,8 @@ fn evaluator_reproduces_the_golden_actions_bit_for_bit() {
     let file = aligned_copy(POLICY);
     let view = PolicyView::decode(file.as_bytes()).unwrap();
     let mut mlp = Mlp::<64>::new(&view).unwrap();
-    let trace = f32s(TRACE);
-    let expected = f32s(ACTIONS);
+    let trace = f32s_le(TRACE);
+    let expected = f32s_le(ACTIONS);
     assert_eq!(trace.len() / OBS_DIM, expected.len() / ACT_DIM);
     for (n, (obs, want)) in trace
         .chunks_exact(OBS_DIM)

@@ -30,7 +30,7 @@ use dex_runtime::testkit::aligned_copy;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
     EvalSettings, HELDOUT_SEED, PolicyEval, action_error, action_errors, episode_outcomes,
-    heldout_observations,
+    heldout_observations_of_both,
 };
 use dex_trainer::export::{
     CALIBRATION_EPISODES, CALIBRATION_SEED, calibration_observations, equalise_policy_file,
@@ -167,15 +167,8 @@ fn main() -> anyhow::Result<ExitCode> {
         int8_file.len()
     );
 
-    let mut observations =
-        heldout_observations(&f32_file, &scene, env, args.heldout_episodes, HELDOUT_SEED)?;
-    observations.extend(heldout_observations(
-        &int8_file,
-        &scene,
-        env,
-        args.heldout_episodes,
-        HELDOUT_SEED,
-    )?);
+    let observations =
+        heldout_observations_of_both(&f32_file, &int8_file, &scene, env, args.heldout_episodes)?;
     let error = action_error(&f32_file, &int8_file, &observations)?;
     let worst = error.iter().copied().fold(0.0f64, f64::max);
     println!(

@@ -273,6 +273,27 @@ pub fn heldout_observations(
     Ok(out)
 }
 
+/// The held-out set on which an int8 policy is compared with its f32 source: every observation of
+/// `episodes` episodes driven by each of the two policies from [`HELDOUT_SEED`] (the states either
+/// policy visits).
+pub fn heldout_observations_of_both(
+    f32_file: &[u8],
+    int8_file: &[u8],
+    scene: &Scene,
+    env: EnvConfig,
+    episodes: u32,
+) -> Result<Vec<[f32; OBS_DIM]>, EvalError> {
+    let mut observations = heldout_observations(f32_file, scene, env, episodes, HELDOUT_SEED)?;
+    observations.extend(heldout_observations(
+        int8_file,
+        scene,
+        env,
+        episodes,
+        HELDOUT_SEED,
+    )?);
+    Ok(observations)
+}
+
 /// Every `|a(x) - b(x)| / (max - min)` over `observations` and joints (observation-major): the
 /// distribution behind [`action_error`]'s maxima.
 pub fn action_errors(

@@ -141,6 +141,9 @@ pub struct Equalised {
     /// Largest `|a_new - a_old| / (max - min)` over the calibration observations and joints,
     /// through the runtime: the f32 function change caused by rounding the new weights to f32.
     pub max_f32_change: f64,
+    /// The source was already on the int8 grid (quantisation-aware training) and is returned
+    /// unchanged.
+    pub on_grid: bool,
 }
 
 /// Rewrites an f32 policy so that post-training quantisation loses less, without changing its f32
@@ -162,7 +165,7 @@ pub struct Equalised {
 /// The arithmetic is done in f64 and rounded once to f32. `calibration` holds raw observations
 /// (what the controller receives), e.g. `CALIBRATION_EPISODES` episodes from `CALIBRATION_SEED`.
 ///
-/// A file whose every layer already lies on the int8 grid (`dex_policy::int8::on_grid`: a
+/// A file whose every layer already lies on the int8 grid (`dex_policy::int8::policy_on_grid`: a
 /// quantisation-aware trained actor, see `learn::quantise`) is returned unchanged, with a change of
 /// 0: its quantisation loses nothing, and rescaling would move the weights off the grid.
 pub fn equalise_policy_file(
@@ -182,10 +185,11 @@ pub fn equalise_policy_file(
             .map(|v| v.iter().map(|&x| f64::from(x)).collect())
             .ok_or(ExportError::Format(dex_policy::FormatError::MalformedBody))
     };
-    if is_on_int8_grid(&view)? {
+    if dex_policy::int8::policy_on_grid(&view)? {
         return Ok(Equalised {
             file: f32_file.to_vec(),
             max_f32_change: 0.0,
+            on_grid: true,
         });
     }
     let mut mean = get(0, n)?;
@@ -266,24 +270,8 @@ pub fn equalise_policy_file(
     Ok(Equalised {
         file,
         max_f32_change,
+        on_grid: false,
     })
-}
-
-/// Whether every layer of an f32 policy file lies on the int8 grid (int8 layers count as on it).
-pub fn is_on_int8_grid(view: &dex_policy::PolicyView<'_>) -> Result<bool, ExportError> {
-    let values = view.values().as_slice()?;
-    for l in view.layers() {
-        if l.dtype != dex_policy::LayerDtype::F32 {
-            continue;
-        }
-        let w = values
-            .get(l.weights..l.weights + l.inputs * l.outputs)
-            .ok_or(ExportError::Format(dex_policy::FormatError::MalformedBody))?;
-        if !dex_policy::int8::on_grid(l.inputs, l.outputs, w) {
-            return Ok(false);
-        }
-    }
-    Ok(true)
 }
 
 /// Largest action difference of two f32-or-int8 policy files over `observations`, as a fraction

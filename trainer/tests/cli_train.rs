@@ -172,7 +172,7 @@ fn quantisation_aware_run_exports_int8_without_loss() {
     let trained = std::fs::read(seed.join("policy.dxpl")).unwrap();
     let aligned = dex_runtime::testkit::aligned_copy(&trained);
     let view = dex_policy::PolicyView::decode(aligned.as_bytes()).unwrap();
-    assert!(dex_trainer::export::is_on_int8_grid(&view).unwrap());
+    assert!(dex_policy::int8::policy_on_grid(&view).unwrap());
 
     // `trainer export --int8` re-exports the same f32 policy and quantises it as it is.
     let o = trainer(&["export", out_s, "--int8"]);

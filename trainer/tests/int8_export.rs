@@ -17,11 +17,11 @@ use dex_runtime::interface::ACTION_JOINTS;
 use dex_runtime::testkit::aligned_copy;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
-    EvalSettings, HELDOUT_SEED, action_error, episode_outcomes, evaluate_policy_file,
-    heldout_observations,
+    EvalSettings, action_error, episode_outcomes, evaluate_policy_file,
+    heldout_observations_of_both,
 };
 use dex_trainer::export::{
-    calibration_observations, equalise_policy_file, is_on_int8_grid, quantise_policy_file,
+    calibration_observations, equalise_policy_file, quantise_policy_file,
     quantise_policy_file_calibrated,
 };
 
@@ -45,8 +45,7 @@ fn heldout(
     env: EnvConfig,
     int8: &[u8],
 ) -> Vec<[f32; dex_runtime::interface::OBS_DIM]> {
-    let mut observations = heldout_observations(f32_file, scene, env, 5, HELDOUT_SEED).unwrap();
-    observations.extend(heldout_observations(int8, scene, env, 5, HELDOUT_SEED).unwrap());
+    let observations = heldout_observations_of_both(f32_file, int8, scene, env, 5).unwrap();
     assert!(observations.len() > 100, "{}", observations.len());
     observations
 }
@@ -56,7 +55,9 @@ fn quantisation_aware_policy_stays_within_one_percent_of_each_joint_range() {
     let scene = Scene::load().unwrap();
     let env = EnvConfig::new(Task::Reach);
     let aligned = aligned_copy(TRAINED_FOR_INT8);
-    assert!(is_on_int8_grid(&PolicyView::decode(aligned.as_bytes()).unwrap()).unwrap());
+    assert!(
+        dex_policy::int8::policy_on_grid(&PolicyView::decode(aligned.as_bytes()).unwrap()).unwrap()
+    );
     // Equalisation leaves a file on the grid alone; the int8 file is its plain quantisation.
     let calibration = calibration(TRAINED_FOR_INT8, &scene, env);
     let eq = equalise_policy_file(TRAINED_FOR_INT8, &calibration).unwrap();
@@ -64,6 +65,7 @@ fn quantisation_aware_policy_stays_within_one_percent_of_each_joint_range() {
         (eq.file.as_slice(), eq.max_f32_change),
         (TRAINED_FOR_INT8, 0.0)
     );
+    assert!(eq.on_grid);
     let (int8, change) =
         quantise_policy_file_calibrated(TRAINED_FOR_INT8, None, &calibration).unwrap();
     assert_eq!(int8, quantise_policy_file(TRAINED_FOR_INT8, None).unwrap());
@@ -150,6 +152,7 @@ fn equalisation_keeps_the_f32_function_and_cuts_the_int8_error() {
     // The f32 function is unchanged (f32 rounding of the rewritten weights only), on calibration
     // and on held-out observations.
     assert!(eq.max_f32_change <= 1e-5, "{}", eq.max_f32_change);
+    assert!(!eq.on_grid);
     let plain = quantise_policy_file(TRAINED, None).unwrap();
     let (calibrated, change) =
         quantise_policy_file_calibrated(TRAINED, None, &calibration).unwrap();

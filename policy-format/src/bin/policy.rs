@@ -132,18 +132,8 @@ fn inspect(bytes: &[u8]) -> anyhow::Result<()> {
 fn quantise(input: &PathBuf, output: &PathBuf) -> anyhow::Result<()> {
     let bytes = read(input)?;
     let view = PolicyView::decode(&bytes).context("invalid policy file")?;
-    let values = view.values();
-    let mut on_grid = true;
-    let mut f32_layers = 0;
-    for l in view.layers() {
-        if l.dtype == LayerDtype::F32 {
-            f32_layers += 1;
-            let w: Vec<f32> = (l.weights..l.weights + l.inputs * l.outputs)
-                .map(|k| values.get(k).context("malformed weights"))
-                .collect::<anyhow::Result<_>>()?;
-            on_grid &= dex_policy::int8::on_grid(l.inputs, l.outputs, &w);
-        }
-    }
+    let f32_layers = view.layers().filter(|l| l.dtype == LayerDtype::F32).count();
+    let on_grid = dex_policy::int8::policy_on_grid(&view)?;
     let provenance = dex_policy::Provenance {
         success_rate: None,
         eval_episodes: 0,

@@ -843,11 +843,19 @@ fn worker_loop<E: Env>(
     }
 }
 
-/// Copies `shared` into the worker's `local` copy when its version moved on since the last copy.
-fn refresh(local: &mut [f32], seen: &mut u64, shared: &[f32], version: u64) {
-    if *seen != version {
-        local.copy_from_slice(shared);
-        *seen = version;
+impl NetShared {
+    /// Copies the online and target parameters into a worker's copies (each with the version it
+    /// last copied) where the shared version moved on since.
+    fn refresh_into(&self, online: (&mut [f32], &mut u64), target: (&mut [f32], &mut u64)) {
+        for ((local, seen), shared, version) in [
+            (online, &self.params, self.version),
+            (target, &self.target, self.target_version),
+        ] {
+            if *seen != version {
+                local.copy_from_slice(shared);
+                *seen = version;
+            }
+        }
     }
 }
 
@@ -868,36 +876,20 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
             .norm
             .apply_rows(&mut local.bufs.batch.next_obs[..rows]);
     }
-    {
-        let a = lock(&ctx.actor)?;
-        refresh(
-            &mut local.actor,
-            &mut local.versions[0],
-            &a.params,
-            a.version,
-        );
-        refresh(
-            &mut local.target_actor,
-            &mut local.versions[2],
-            &a.target,
-            a.target_version,
-        );
-    }
-    {
-        let c = lock(&ctx.critic)?;
-        refresh(
-            &mut local.critic,
-            &mut local.versions[1],
-            &c.params,
-            c.version,
-        );
-        refresh(
-            &mut local.target_critic,
-            &mut local.versions[3],
-            &c.target,
-            c.target_version,
-        );
-    }
+    let [
+        seen_actor,
+        seen_critic,
+        seen_target_actor,
+        seen_target_critic,
+    ] = &mut local.versions;
+    lock(&ctx.actor)?.refresh_into(
+        (&mut local.actor, seen_actor),
+        (&mut local.target_actor, seen_target_actor),
+    );
+    lock(&ctx.critic)?.refresh_into(
+        (&mut local.critic, seen_critic),
+        (&mut local.target_critic, seen_target_critic),
+    );
     // Quantisation-aware: the target actor and the actor are used with int8-grid weights; the
     // actor's gradient (taken at the quantised weights) updates the f32 weights (straight-through).
     let aware = ctx.quantisation_aware();

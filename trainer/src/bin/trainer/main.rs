@@ -189,38 +189,36 @@ fn export_int8(
     settings: &config::TrainSettings,
 ) -> anyhow::Result<()> {
     use dex_trainer::evaluate::{
-        EvalSettings, HELDOUT_SEED, action_error, evaluate_policy_file, heldout_observations,
+        EvalSettings, action_error, evaluate_policy_file, heldout_observations_of_both,
+    };
+    use dex_trainer::export::{
+        calibration_observations, equalise_policy_file, quantise_policy_file,
     };
     /// Held-out episodes per policy of the reported action error.
     const HELDOUT_EPISODES: u32 = 10;
-    use dex_trainer::export::{calibration_observations, quantise_policy_file_calibrated};
     let f32_file =
         std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
     let scene = dex_trainer::env::Scene::load()
         .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
     let env = settings.reward.env_config(settings.task.task());
     let calibration = calibration_observations(&f32_file, &scene, env)?;
-    let (draft, change) = quantise_policy_file_calibrated(&f32_file, None, &calibration)?;
-    let aligned = dex_runtime::testkit::aligned_copy(&f32_file);
-    if dex_trainer::export::is_on_int8_grid(&dex_policy::PolicyView::decode(aligned.as_bytes())?)? {
+    // Equalised once; the draft (for the error and the evaluation) and the written file are
+    // quantisations of the same weights.
+    let eq = equalise_policy_file(&f32_file, &calibration)?;
+    if eq.on_grid {
         println!(
             "the f32 weights are on the int8 grid (quantisation-aware training): quantised as they are"
         );
     } else {
         println!(
-            "equalised on {} calibration observations (f32 function change {change:.2e} of a joint's range)",
-            calibration.len()
+            "equalised on {} calibration observations (f32 function change {:.2e} of a joint's range)",
+            calibration.len(),
+            eq.max_f32_change
         );
     }
+    let draft = quantise_policy_file(&eq.file, None)?;
     // The int8 file's worst action error against the f32 file on held-out observations.
-    let mut heldout = heldout_observations(&f32_file, &scene, env, HELDOUT_EPISODES, HELDOUT_SEED)?;
-    heldout.extend(heldout_observations(
-        &draft,
-        &scene,
-        env,
-        HELDOUT_EPISODES,
-        HELDOUT_SEED,
-    )?);
+    let heldout = heldout_observations_of_both(&f32_file, &draft, &scene, env, HELDOUT_EPISODES)?;
     let worst = action_error(&f32_file, &draft, &heldout)?
         .iter()
         .copied()
@@ -244,11 +242,7 @@ fn export_int8(
         can_quantisation: true,
     };
     let e = evaluate_policy_file(&draft, &scene, &eval_settings, &|| {})?;
-    let (file, _) = quantise_policy_file_calibrated(
-        &f32_file,
-        Some((e.success_rate() as f32, e.episodes)),
-        &calibration,
-    )?;
+    let file = quantise_policy_file(&eq.file, Some((e.success_rate() as f32, e.episodes)))?;
     std::fs::write(out, &file).with_context(|| format!("cannot write {}", out.display()))?;
     let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
         let aligned = dex_runtime::testkit::aligned_copy(bytes);
