@@ -354,6 +354,36 @@ pub fn export_actor(
     normalisation: Option<ObsNormalisation<'_>>,
     info: &ExportInfo,
 ) -> Result<Vec<u8>, ExportError> {
+    export_actor_clipped(net, params, normalisation, info, EXPORT_OBS_CLIP)
+}
+
+/// Encodes an actor trained on inputs scaled by the fixed `scaling` (mean, inverse standard
+/// deviation, clip): the file applies the same scaling and clip in front of the network.
+pub fn export_scaled_actor(
+    net: &Mlp,
+    params: &[f32],
+    scaling: &crate::learn::bc::ObsScaling,
+    info: &ExportInfo,
+) -> Result<Vec<u8>, ExportError> {
+    export_actor_clipped(
+        net,
+        params,
+        Some(ObsNormalisation {
+            mean: &scaling.mean,
+            inv_std: &scaling.inv_std,
+        }),
+        info,
+        scaling.clip,
+    )
+}
+
+fn export_actor_clipped(
+    net: &Mlp,
+    params: &[f32],
+    normalisation: Option<ObsNormalisation<'_>>,
+    info: &ExportInfo,
+    obs_clip: f32,
+) -> Result<Vec<u8>, ExportError> {
     let obs_dim = dex_runtime::interface::OBS_DIM;
     let act_dim = dex_runtime::interface::ACT_DIM;
     if net.input_dim() != obs_dim || net.output_dim() != act_dim {
@@ -423,7 +453,7 @@ pub fn export_actor(
     let body = Body {
         task: task_code(info.task),
         observation,
-        obs_clip: EXPORT_OBS_CLIP,
+        obs_clip,
         action,
         control_period_us: CONTROL_PERIOD_US,
         layers: body_layers,

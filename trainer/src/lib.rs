@@ -9,13 +9,19 @@
 //! - [`jaco`]: the environment behind the learner's [`learn::Env`] trait.
 //! - [`export`]: a trained actor as a `dex-policy` file; [`evaluate`]: the success rate of such a
 //!   file run through the `dex-runtime` evaluator, the code a controller runs.
+//! - [`demos`]: demonstrations recorded as data (versioned, checksummed files); [`cloning`]: behaviour
+//!   cloning of them into a policy file; [`imitation`]: cloning plus DAgger rounds with the Markov
+//!   demonstrator as the oracle, the learner that solves Grasp and StackInHand.
 //! - [`plot`]: learning curves like the paper's (mean and min-max band over seeds).
 //!
 //! The `trainer` binary puts these together (train, eval, plot, export).
 
+pub mod cloning;
+pub mod demos;
 pub mod env;
 pub mod evaluate;
 pub mod export;
+pub mod imitation;
 pub mod jaco;
 pub mod learn;
 pub mod plot;

@@ -5,7 +5,7 @@
 use dex_runtime::Mlp;
 use dex_runtime::interface::ACT_DIM;
 
-use crate::env::{Demonstration, Demonstrator, EnvError, JacoEnv};
+use crate::env::{Demonstration, Demonstrator, EnvError, JacoEnv, MarkovDemonstrator};
 use crate::evaluate::{EVAL_WIDTH, EvalError, decode_jaco_policy, physical_to_env_action};
 
 /// A policy file driving demonstrations.
@@ -46,6 +46,8 @@ impl Demonstration for PolicyDemonstration {
 pub enum DemoSource {
     /// The scripted demonstrator of the task.
     Scripted(Demonstrator),
+    /// The Markov scripted demonstrator of the task (its action depends on the state alone).
+    Markov(MarkovDemonstrator),
     /// An exported policy.
     Policy(Box<PolicyDemonstration>),
 }
@@ -54,6 +56,7 @@ impl Demonstration for DemoSource {
     fn restart(&mut self) {
         match self {
             DemoSource::Scripted(d) => Demonstration::restart(d),
+            DemoSource::Markov(d) => Demonstration::restart(d),
             DemoSource::Policy(p) => p.restart(),
         }
     }
@@ -61,6 +64,7 @@ impl Demonstration for DemoSource {
     fn act(&mut self, env: &JacoEnv) -> Result<[f32; ACT_DIM], EnvError> {
         match self {
             DemoSource::Scripted(d) => Demonstration::act(d, env),
+            DemoSource::Markov(d) => Demonstration::act(d, env),
             DemoSource::Policy(p) => p.act(env),
         }
     }

@@ -26,6 +26,7 @@ fn small_config(seed: u64) -> RunConfig {
             every_episodes: 20,
             episodes: 20,
             max_steps: 100,
+            ..EvalConfig::default()
         },
         seed,
         ..RunConfig::default()

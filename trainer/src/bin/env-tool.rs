@@ -1,7 +1,7 @@
 //! `env-tool`: run the scripted demonstrator and measure the Jaco environment's speed.
 //!
 //! ```text
-//! env-tool demo  --task grasp|stack|stack-in-hand|reach [--episodes 200] [--seed 0] [--verbose]
+//! env-tool demo  --task grasp|stack|stack-in-hand|reach [--episodes 200] [--seed 0] [--verbose] [--markov]
 //! env-tool bench [--threads 1] [--steps 3000] [--mode random|demo]
 //! env-tool record --task stack [--seed 0] [--out runs/demo]   # for scripts/render-demo.py
 //! ```
@@ -61,6 +61,9 @@ fn demo(args: &[String]) -> Result<(), BoxError> {
     let episodes: u64 = flag(args, "--episodes", 200)?;
     let seed: u64 = flag(args, "--seed", 0)?;
     let verbose = args.iter().any(|a| a == "--verbose");
+    if args.iter().any(|a| a == "--markov") {
+        return markov_demo(task, episodes, seed);
+    }
     let scene = Scene::load()?;
     let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
     let start = Instant::now();
@@ -106,6 +109,38 @@ fn demo(args: &[String]) -> Result<(), BoxError> {
         "task {task:?}: {successes}/{episodes} successes ({:.1}%), {steps} control steps in {secs:.1} s ({:.0} steps/s incl. resets)",
         100.0 * f64::from(successes) / episodes as f64,
         steps as f64 / secs
+    );
+    Ok(())
+}
+
+/// `demo --markov`: success of the Markov demonstrator (its phase at the end of failed episodes).
+fn markov_demo(task: Task, episodes: u64, seed: u64) -> Result<(), BoxError> {
+    let scene = Scene::load()?;
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
+    let demo = dex_trainer::env::MarkovDemonstrator::new(task);
+    let start = Instant::now();
+    let mut successes = 0;
+    for ep in 0..episodes {
+        env.reset(seed + ep)?;
+        loop {
+            let out = env.step(&demo.act(&env))?;
+            if out.done {
+                successes += u32::from(out.success);
+                if !out.success {
+                    println!(
+                        "episode {ep} (seed {}): failed in phase {:?}",
+                        seed + ep,
+                        demo.phase(&env)
+                    );
+                }
+                break;
+            }
+        }
+    }
+    println!(
+        "task {task:?} (Markov demonstrator): {successes}/{episodes} successes ({:.1}%) in {:.1} s",
+        100.0 * f64::from(successes) / episodes as f64,
+        start.elapsed().as_secs_f64()
     );
     Ok(())
 }

@@ -87,6 +87,33 @@ impl Demonstrator {
         self.timer = 0;
     }
 
+    /// Back to the phase that fits the environment's current state, for taking over an episode
+    /// midway (e.g. from a learned policy): with brick 1 already in the closed hand it carries on
+    /// lifting (Grasp) or carrying (StackInHand, Stack); otherwise it starts from the approach.
+    pub fn restart_from_state(&mut self, env: &JacoEnv) {
+        let ids = env.scene().ids();
+        let data = env.data();
+        let (pinch, _) = pinch_pose(data, ids);
+        let b1 = data
+            .xpos()
+            .get(ids.brick1_body)
+            .copied()
+            .unwrap_or([0.0; 3]);
+        let closed = ids.joint_qpos[ARM_JOINTS..]
+            .iter()
+            .map(|&a| data.qpos().get(a).copied().unwrap_or(0.0))
+            .sum::<f64>()
+            / 3.0
+            > PRESHAPE + 0.2;
+        let held = closed && norm3(&sub(&b1, &pinch)) < 0.04 && b1[2] > 0.005;
+        let phase = match (self.task, held) {
+            (Task::Reach, _) | (_, false) => Phase::Approach,
+            (Task::Grasp, true) => Phase::Lift,
+            (Task::StackInHand | Task::Stack, true) => Phase::Carry,
+        };
+        self.enter(phase, env);
+    }
+
     /// The current phase.
     pub fn phase(&self) -> Phase {
         self.phase
@@ -248,57 +275,58 @@ impl Demonstrator {
                 }
             }
         };
-        let mut action = self.track(env, &target, yaw, speed);
+        let mut action = track(env, &target, yaw, speed);
         for a in &mut action[ARM_JOINTS..] {
             *a = fingers as f32;
         }
         action
     }
+}
 
-    /// Resolved-rate step towards `target` with the hand pointing down at `yaw`.
-    fn track(&self, env: &JacoEnv, target: &[f64; 3], yaw: f64, max_speed: f64) -> [f32; ACT_DIM] {
-        let ids = env.scene().ids();
-        let e = pose_error(env.data(), ids, target, &down_rotation(yaw));
-        let mut twist: Vec6 = [0.0; 6];
-        let lin = norm3(&e[..3]) * POSITION_GAIN;
-        let s = if lin > max_speed {
-            max_speed / lin
-        } else {
-            1.0
-        };
-        let ang = norm3(&e[3..]) * ORIENTATION_GAIN;
-        let sr = if ang > MAX_ANGULAR_SPEED {
-            MAX_ANGULAR_SPEED / ang
-        } else {
-            1.0
-        };
-        for i in 0..3 {
-            twist[i] = e[i] * POSITION_GAIN * s;
-            twist[3 + i] = e[3 + i] * ORIENTATION_GAIN * sr;
-        }
-        let jac = arm_jacobian(env.data(), ids);
-        let qdot = damped_least_squares(&jac, &twist, 0.02);
-        let mut action = [0.0f32; ACT_DIM];
-        let mut worst = 1.0f64;
-        for j in 0..ARM_JOINTS {
-            let scale = f64::from(ACTION_JOINTS[j].scale);
-            worst = worst.max((qdot[j] / scale).abs());
-        }
-        for j in 0..ARM_JOINTS {
-            let scale = f64::from(ACTION_JOINTS[j].scale);
-            action[j] = (qdot[j] / scale / worst) as f32;
-        }
-        action
+/// Resolved-rate step towards `target` with the hand pointing down at `yaw`, the pinch site at most
+/// `max_speed` fast (fingers left at 0).
+pub(crate) fn track(env: &JacoEnv, target: &[f64; 3], yaw: f64, max_speed: f64) -> [f32; ACT_DIM] {
+    let ids = env.scene().ids();
+    let e = pose_error(env.data(), ids, target, &down_rotation(yaw));
+    let mut twist: Vec6 = [0.0; 6];
+    let lin = norm3(&e[..3]) * POSITION_GAIN;
+    let s = if lin > max_speed {
+        max_speed / lin
+    } else {
+        1.0
+    };
+    let ang = norm3(&e[3..]) * ORIENTATION_GAIN;
+    let sr = if ang > MAX_ANGULAR_SPEED {
+        MAX_ANGULAR_SPEED / ang
+    } else {
+        1.0
+    };
+    for i in 0..3 {
+        twist[i] = e[i] * POSITION_GAIN * s;
+        twist[3 + i] = e[3 + i] * ORIENTATION_GAIN * sr;
     }
+    let jac = arm_jacobian(env.data(), ids);
+    let qdot = damped_least_squares(&jac, &twist, 0.02);
+    let mut action = [0.0f32; ACT_DIM];
+    let mut worst = 1.0f64;
+    for j in 0..ARM_JOINTS {
+        let scale = f64::from(ACTION_JOINTS[j].scale);
+        worst = worst.max((qdot[j] / scale).abs());
+    }
+    for j in 0..ARM_JOINTS {
+        let scale = f64::from(ACTION_JOINTS[j].scale);
+        action[j] = (qdot[j] / scale / worst) as f32;
+    }
+    action
 }
 
 /// Yaw of a frame's x axis (row-major matrix).
-fn yaw_of(m: &[f64; 9]) -> f64 {
+pub(crate) fn yaw_of(m: &[f64; 9]) -> f64 {
     m[3].atan2(m[0])
 }
 
 /// Wraps an angle difference into (-pi/2, pi/2] (a brick looks the same turned by pi).
-fn wrap_half_pi(a: f64) -> f64 {
+pub(crate) fn wrap_half_pi(a: f64) -> f64 {
     use std::f64::consts::PI;
     let mut a = a % PI;
     if a > PI / 2.0 {
@@ -310,15 +338,15 @@ fn wrap_half_pi(a: f64) -> f64 {
 }
 
 /// The angle equivalent to `a` modulo pi that is nearest to `reference`.
-fn nearest_equivalent(a: f64, reference: f64) -> f64 {
+pub(crate) fn nearest_equivalent(a: f64, reference: f64) -> f64 {
     reference + wrap_half_pi(a - reference)
 }
 
-fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+pub(crate) fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
-fn add(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+pub(crate) fn add(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 

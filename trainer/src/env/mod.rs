@@ -8,7 +8,9 @@
 //! - [`Task`] (Grasp, StackInHand, Stack, Reach) fixes the start states and success; [`Reward`] is one of
 //!   the paper's reward functions, built from the reach/grasp/stack [`Predicates`] ([`rewards`]).
 //! - The observation ([`observation`]) follows `dex_runtime::interface::OBSERVATION_FIELDS` exactly.
-//! - [`Demonstrator`] is a scripted state-based controller that solves the tasks ([`demo`]).
+//! - [`Demonstrator`] is a scripted state-based controller that solves the tasks ([`demo`]);
+//!   [`MarkovDemonstrator`] decides from the current state alone, an oracle for cloning and DAgger
+//!   ([`markov_demo`]).
 //! - [`StartStates`] makes training starts under a [`StartScheme`]: original, in-hand mixture, or
 //!   states along demonstrations ([`start_states`]).
 //!
@@ -18,6 +20,7 @@ pub mod demo;
 pub mod environment;
 pub mod error;
 pub mod kinematics;
+pub mod markov_demo;
 pub mod observation;
 pub mod rewards;
 pub mod rng;
@@ -28,6 +31,7 @@ pub mod tasks;
 pub use demo::{Demonstrator, Phase};
 pub use environment::{EnvConfig, EnvSnapshot, JacoEnv, StepOutcome};
 pub use error::EnvError;
+pub use markov_demo::{MarkovDemonstrator, MarkovPhase};
 pub use observation::Observation;
 pub use rewards::{Predicates, Reward, RewardState};
 pub use scene::{AssetPaths, Scene};

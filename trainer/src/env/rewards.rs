@@ -3,7 +3,10 @@
 //! Choices the paper leaves open (all lengths in metres, in the table frame unless said otherwise):
 //! - **reach**: the pinch site lies inside an axis-aligned box of half-lengths [`REACH_HALF_EXTENTS`]
 //!   centred [`REACH_CENTRE_HEIGHT`] above brick 1's origin (i.e. around the brick's middle).
-//! - **grasp**: brick 1's origin (bottom face) is more than [`GRASP_HEIGHT`] = 3 cm above the table.
+//! - **grasp**: brick 1 is lifted *and held*: its origin (bottom face) is more than [`GRASP_HEIGHT`] =
+//!   3 cm above the table and within [`GRASP_HOLD_DISTANCE`] = 4 cm of the pinch site (the demonstrator's own "in hand" test). Height alone
+//!   also held for a brick tipped onto its end (its origin then sits 3.2 cm up) or leaning on brick 2;
+//!   in the hand the origin is 1.2 cm below the pinch site ([`super::environment::GRASP_DEPTH`]).
 //! - **stack**: brick 1's origin, minus brick 2's stacking site (brick 2's origin + [`BRICK_HEIGHT`] along
 //!   brick 2's z axis), expressed in brick 2's frame, lies inside a box of half-lengths
 //!   [`STACK_HALF_EXTENTS`] (1 cm sideways, 8 mm vertically: tolerates a brick resting on the studs).
@@ -19,6 +22,8 @@ pub const REACH_HALF_EXTENTS: [f64; 3] = [0.04, 0.04, 0.04];
 pub const REACH_CENTRE_HEIGHT: f64 = 0.01;
 /// Brick 1's origin must be above this height for the grasp predicate.
 pub const GRASP_HEIGHT: f64 = 0.03;
+/// Brick 1's origin must be within this distance of the pinch site for the grasp predicate.
+pub const GRASP_HOLD_DISTANCE: f64 = 0.04;
 /// Half-lengths of the stack box, in brick 2's frame (x, y, z).
 pub const STACK_HALF_EXTENTS: [f64; 3] = [0.01, 0.01, 0.008];
 /// Weight of the pinch-to-brick-1 distance in `r_S1`, per metre.
@@ -44,7 +49,7 @@ pub struct RewardState {
 pub struct Predicates {
     /// Pinch site inside the reach box of brick 1.
     pub reach: bool,
-    /// Brick 1 lifted above [`GRASP_HEIGHT`].
+    /// Brick 1 lifted above [`GRASP_HEIGHT`] and held (within [`GRASP_HOLD_DISTANCE`] of the pinch site).
     pub grasp: bool,
     /// Brick 1 inside the stack box of brick 2.
     pub stack: bool,
@@ -59,7 +64,8 @@ impl RewardState {
             self.brick1_pos[2] + REACH_CENTRE_HEIGHT,
         ];
         let reach = (0..3).all(|i| (self.pinch[i] - centre[i]).abs() <= REACH_HALF_EXTENTS[i]);
-        let grasp = self.brick1_pos[2] > GRASP_HEIGHT;
+        let grasp = self.brick1_pos[2] > GRASP_HEIGHT
+            && dist(&self.brick1_pos, &self.pinch) <= GRASP_HOLD_DISTANCE;
         let d = self.stack_offset();
         let stack = (0..3).all(|i| d[i].abs() <= STACK_HALF_EXTENTS[i]);
         Predicates {
@@ -265,6 +271,33 @@ mod tests {
                 && (d[2] - 0.007).abs() < 1e-12
         );
         assert!(s.predicates().stack);
+    }
+
+    #[test]
+    fn grasp_needs_the_brick_held() {
+        // Brick 1 tipped onto its end on the table: its origin (bottom-face centre) sits half the
+        // brick's length up, above 3 cm, but the hand is far away.
+        let tipped = RewardState {
+            brick1_pos: [0.0, 0.0, super::super::scene::BRICK_HALF_EXTENTS[1]],
+            ..far()
+        };
+        assert!(tipped.brick1_pos[2] > GRASP_HEIGHT);
+        assert!(!tipped.predicates().grasp, "a tipped brick is not grasped");
+        // Brick 1 leaning on brick 2, 4 cm up, the hand 5 cm away.
+        let leaning = RewardState {
+            pinch: [0.0, 0.15, 0.09],
+            brick1_pos: [0.0, 0.15, 0.04],
+            ..far()
+        };
+        assert!(
+            !leaning.predicates().grasp,
+            "a leaning brick is not grasped"
+        );
+        let mut held = leaning;
+        held.pinch = [0.0, 0.15, 0.04 + 0.012];
+        assert!(held.predicates().grasp, "held at the grasp depth");
+        held.pinch[2] = 0.04 + GRASP_HOLD_DISTANCE + 0.001;
+        assert!(!held.predicates().grasp, "just out of the hand");
     }
 
     #[test]

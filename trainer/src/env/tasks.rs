@@ -9,7 +9,8 @@ pub const EPISODE_STEPS: u32 = 150;
 pub const REACH_EPISODE_STEPS: u32 = 50;
 
 /// A task of the paper (plus a short Reach task for fast learner tests).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Task {
     /// Both bricks on the table; lift brick 1. Success: grasp predicate (brick 1 above 3 cm) at the end.
     Grasp,

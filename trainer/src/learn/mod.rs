@@ -4,6 +4,7 @@
 //! - [`nets`]: MLPs with hand-written backpropagation over preallocated buffers, on a single-threaded GEMM
 //!   ([`kernel`]; the engine choice is measured in docs/benchmarks.md).
 //! - [`adam`]: Adam with per-worker first moments and one shared second moment.
+//! - [`bc`]: behaviour cloning of demonstrations (the diagnostic and the fine-tuning start).
 //! - [`norm`]: optional observation normalisation, foldable into the actor for export.
 //! - [`quantise`]: quantisation-aware training of the actor (int8-grid weights, straight-through).
 //! - [`replay`]: uniform ring-buffer replay. [`ddpg`]: the DDPG gradients and target networks.
@@ -15,6 +16,7 @@
 //! [`nets::Mlp::layers`]), and the Jaco environment itself.
 
 pub mod adam;
+pub mod bc;
 pub mod checkpoint;
 pub mod ddpg;
 pub mod env;

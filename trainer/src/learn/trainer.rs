@@ -84,6 +84,9 @@ pub struct EvalConfig {
     pub episodes: usize,
     /// Safety cap on an evaluation episode's length, for environments that never end one.
     pub max_steps: usize,
+    /// Every evaluation uses the same `episodes` starts (so a curve shows learning, not which
+    /// starts were drawn); false draws fresh starts per evaluation (the paper's protocol).
+    pub fixed_starts: bool,
 }
 
 impl Default for EvalConfig {
@@ -92,6 +95,7 @@ impl Default for EvalConfig {
             every_episodes: 30,
             episodes: 10,
             max_steps: 10_000,
+            fixed_starts: true,
         }
     }
 }
@@ -794,7 +798,8 @@ fn worker_loop<E: Env>(
             let every = cfg.eval.every_episodes;
             if every > 0 && n.is_multiple_of(every) {
                 let index = n / every;
-                let mut rng = Rng::derive(cfg.seed, STREAM_EVAL + index);
+                let stream = if cfg.eval.fixed_starts { 0 } else { index };
+                let mut rng = Rng::derive(cfg.seed, STREAM_EVAL + stream);
                 let params = local.actor_q.select(
                     ctx.quantisation_aware(),
                     &nets.actor,
@@ -1006,6 +1011,7 @@ pub fn evaluate_actor<E: Env>(
         every_episodes: 0,
         episodes,
         max_steps,
+        fixed_starts: true,
     };
     let mut scratch = actor.scratch(1);
     evaluate(

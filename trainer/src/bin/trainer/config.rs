@@ -33,6 +33,16 @@ impl TaskArg {
         }
     }
 
+    /// From the environment's task.
+    pub fn from_task(task: Task) -> Self {
+        match task {
+            Task::Reach => TaskArg::Reach,
+            Task::Grasp => TaskArg::Grasp,
+            Task::StackInHand => TaskArg::StackInHand,
+            Task::Stack => TaskArg::Stack,
+        }
+    }
+
     /// From a policy file's task.
     pub fn from_policy(task: dex_policy::Task) -> Self {
         match task {

@@ -7,10 +7,15 @@
 //! trainer plot RUN_DIR
 //! trainer figure experiments/figures/FIGURE.toml [--transitions N] [--seeds 0,1] [--plot-only]
 //! trainer export RUN_DIR [--seed 0] [--out FILE.dxpl] [--int8]
+//! trainer demos --task grasp [--episodes 200] [--arm-noise 0.2] --out FILE.dxdm
+//! trainer clone --demos FILE.dxdm[,...] --out POLICY.dxpl [--steps 20000]
+//! trainer imitate --task grasp [--rounds 4] [--seeds 0,1,2] [--out runs/imitate]
 //! ```
 
 mod config;
+mod demos;
 mod figure;
+mod imitate;
 mod train;
 
 use std::path::PathBuf;
@@ -46,6 +51,12 @@ enum Command {
     Export(ExportArgs),
     /// Train (resuming) the runs of a figure file, then plot them together (PNG and SVG).
     Figure(FigureArgs),
+    /// Record demonstrations (scripted demonstrator or a policy file) into a demo file.
+    Demos(demos::DemosArgs),
+    /// Behaviour cloning of demo files into a policy file, evaluated through the runtime.
+    Clone(demos::CloneArgs),
+    /// Imitation learner: clone the Markov demonstrator, then DAgger rounds; exports the best round.
+    Imitate(imitate::ImitateArgs),
 }
 
 /// `trainer figure` flags.
@@ -264,6 +275,9 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Train(args) => train::train(args),
         Command::Eval(args) => train::eval(&args),
+        Command::Demos(args) => demos::demos(&args),
+        Command::Clone(args) => demos::clone(&args),
+        Command::Imitate(args) => imitate::imitate(&args),
         Command::Plot { run } => {
             let files = train::plot_run(&run)?;
             for f in files {

@@ -110,7 +110,7 @@ fn load_scene() -> anyhow::Result<Scene> {
     Scene::load().context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")
 }
 
-fn bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
+pub fn bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
     if quiet {
         return ProgressBar::hidden();
     }

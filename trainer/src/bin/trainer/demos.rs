@@ -1,0 +1,249 @@
+//! `trainer demos` (record demonstrations as data) and `trainer clone` (behaviour cloning of them
+//! into a policy file, evaluated through the runtime).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::Args;
+
+use dex_trainer::demos::{DEMO_SEED, DemoSet, RecordMode, RecordSettings, record_with};
+use dex_trainer::env::{Demonstrator, MarkovDemonstrator, Scene};
+use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
+use dex_trainer::learn::bc::BcConfig;
+use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
+
+use crate::config::{RewardArg, TaskArg};
+
+/// `trainer demos` flags.
+#[derive(Args, Debug)]
+pub struct DemosArgs {
+    /// Task.
+    #[arg(long, value_enum)]
+    task: TaskArg,
+    /// Episodes to record.
+    #[arg(long, default_value_t = 200)]
+    episodes: u32,
+    /// Seed of the start states (episode i starts from episode_seed(seed, i)).
+    #[arg(long, default_value_t = DEMO_SEED)]
+    seed: u64,
+    /// Which scripted demonstrator: the phase machine or the Markov one (its action depends on the
+    /// state alone; the one to clone).
+    #[arg(long, value_enum, default_value_t = DemonstratorArg::Markov)]
+    demonstrator: DemonstratorArg,
+    /// A policy file to record instead of a scripted demonstrator.
+    #[arg(long)]
+    policy: Option<PathBuf>,
+    /// Noise (standard deviation) on the executed arm actions; labels stay clean (DART).
+    #[arg(long, default_value_t = 0.0)]
+    arm_noise: f32,
+    /// Noise on the executed finger actions.
+    #[arg(long, default_value_t = 0.0)]
+    finger_noise: f32,
+    /// Demonstrator takeover: this policy drives each episode for a random number of steps (up to
+    /// --takeover-max-step), then the demonstrator takes over; only its part is recorded.
+    #[arg(long, conflicts_with = "dagger")]
+    takeover: Option<PathBuf>,
+    /// Last step at which the demonstrator may take over.
+    #[arg(long, default_value_t = 120)]
+    takeover_max_step: u32,
+    /// DAgger: this policy acts for whole episodes; the (Markov) demonstrator labels its states.
+    #[arg(long)]
+    dagger: Option<PathBuf>,
+    /// Keep failed episodes too.
+    #[arg(long)]
+    keep_failures: bool,
+    /// Output demo file (refused if it exists, unless --force).
+    #[arg(long)]
+    out: PathBuf,
+    /// Overwrite an existing file.
+    #[arg(long)]
+    force: bool,
+}
+
+/// The scripted demonstrators.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DemonstratorArg {
+    /// The phase machine (phases, timers, anchors).
+    Scripted,
+    /// The Markov demonstrator.
+    Markov,
+}
+
+/// `trainer clone` flags.
+#[derive(Args, Debug)]
+pub struct CloneArgs {
+    /// Demo files (all of one task), comma-separated.
+    #[arg(long, value_delimiter = ',', required = true)]
+    demos: Vec<PathBuf>,
+    /// Task (default: the demo files').
+    #[arg(long, value_enum)]
+    task: Option<TaskArg>,
+    /// Gradient steps.
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Hidden layer widths, comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    hidden: Option<Vec<usize>>,
+    /// Learning rate.
+    #[arg(long)]
+    lr: Option<f32>,
+    /// Seed of initialisation and sampling.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Episodes of the evaluation after export (seed 1,000,000; 0: none).
+    #[arg(long, default_value_t = 100)]
+    eval_episodes: u32,
+    /// Output policy file.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn load_scene() -> anyhow::Result<Scene> {
+    Scene::load().context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")
+}
+
+/// Records demonstrations into a demo file.
+pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
+    if a.out.exists() && !a.force {
+        bail!("{} exists (pass --force to overwrite)", a.out.display());
+    }
+    let task = a.task.task();
+    let settings = RecordSettings {
+        task,
+        episodes: a.episodes,
+        seed: a.seed,
+        arm_noise: a.arm_noise,
+        finger_noise: a.finger_noise,
+        successes_only: !a.keep_failures,
+        mode: match (&a.takeover, &a.dagger) {
+            (Some(_), _) => RecordMode::Takeover {
+                max_step: a.takeover_max_step,
+            },
+            (None, Some(_)) => RecordMode::Dagger,
+            (None, None) => RecordMode::Demonstrator,
+        },
+    };
+    let lead = match a.takeover.as_ref().or(a.dagger.as_ref()) {
+        None => None,
+        Some(p) => Some(load_policy(p)?),
+    };
+    settings.validate()?;
+    let source = match &a.policy {
+        None => match a.demonstrator {
+            DemonstratorArg::Scripted => DemoSource::Scripted(Demonstrator::new(task)),
+            DemonstratorArg::Markov => DemoSource::Markov(MarkovDemonstrator::new(task)),
+        },
+        Some(p) => DemoSource::Policy(Box::new(load_policy(p)?)),
+    };
+    let scene = load_scene()?;
+    let pb = crate::train::bar(
+        u64::from(a.episodes),
+        false,
+        "demos [{elapsed_precise}] [{bar:30}] {pos}/{len} episodes",
+    );
+    let start = std::time::Instant::now();
+    let set = record_with(&scene, lead.as_ref(), &source, &settings, &|| pb.inc(1))?;
+    pb.finish_and_clear();
+    set.save(&a.out)?;
+    println!(
+        "wrote {}: {} of {} episodes succeeded, {} stored, {} transitions, {:.1} s",
+        a.out.display(),
+        set.header.successes,
+        set.header.tried,
+        set.header.episodes,
+        set.rows.len(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn load_policy(p: &Path) -> anyhow::Result<PolicyDemonstration> {
+    let bytes = std::fs::read(p).with_context(|| format!("cannot read {}", p.display()))?;
+    PolicyDemonstration::from_file_bytes(&bytes)
+        .with_context(|| format!("{} is not a usable policy file", p.display()))
+}
+
+/// Loads demo files and checks they are all of `task` (or of the first file's task).
+pub fn load_demos(
+    paths: &[PathBuf],
+    task: Option<TaskArg>,
+) -> anyhow::Result<(Vec<DemoSet>, TaskArg)> {
+    let mut sets = Vec::new();
+    for p in paths {
+        sets.push(DemoSet::load(p)?);
+    }
+    let first: TaskArg = sets
+        .first()
+        .map(|s| s.header.settings.task)
+        .map(TaskArg::from_task)
+        .context("no demo files")?;
+    let task = task.unwrap_or(first);
+    for (s, p) in sets.iter().zip(paths) {
+        s.check_task(task.task(), p)?;
+    }
+    Ok((sets, task))
+}
+
+/// Clones demonstrations into a policy file and evaluates it.
+pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
+    let (sets, task) = load_demos(&a.demos, a.task)?;
+    let mut cfg = BcConfig {
+        seed: a.seed,
+        ..BcConfig::default()
+    };
+    if let Some(s) = a.steps {
+        cfg.steps = s;
+    }
+    if let Some(h) = &a.hidden {
+        cfg.hidden = h.clone();
+    }
+    if let Some(lr) = a.lr {
+        cfg.adam.lr = lr;
+    }
+    cfg.validate()?;
+    let pb = crate::train::bar(
+        cfg.steps,
+        false,
+        "clone [{elapsed_precise}] [{bar:30}] {pos}/{len} steps {msg}",
+    );
+    let start = std::time::Instant::now();
+    let (policy, file) =
+        dex_trainer::cloning::clone_to_policy_file(&sets, task.task(), &cfg, &mut |step, loss| {
+            pb.set_position(step);
+            pb.set_message(format!("mse {loss:.4}"));
+        })?;
+    pb.finish_and_clear();
+    write_policy(&a.out, &file)?;
+    println!(
+        "wrote {}: cloned {} transitions in {:.1} s, final mse {:.4}",
+        a.out.display(),
+        sets.iter().map(|s| s.rows.len()).sum::<usize>(),
+        start.elapsed().as_secs_f64(),
+        policy.final_loss
+    );
+    if a.eval_episodes > 0 {
+        let scene = load_scene()?;
+        let settings = EvalSettings {
+            env: RewardArg::TaskDefault.env_config(task.task()),
+            episodes: a.eval_episodes,
+            seed: 1_000_000,
+            threads: 2,
+            can_quantisation: true,
+        };
+        let e = evaluate_policy_file(&file, &scene, &settings, &|| {})?;
+        println!(
+            "{} on {:?}: {}",
+            a.out.display(),
+            task,
+            crate::train::describe(&e)
+        );
+    }
+    Ok(())
+}
+
+fn write_policy(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(d)?;
+    }
+    std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))
+}

@@ -1,0 +1,176 @@
+//! `trainer imitate`: behaviour cloning of the Markov demonstrator plus DAgger rounds, one run
+//! folder per seed, the best round's policy exported and evaluated through the runtime.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use indicatif::ProgressBar;
+
+use dex_trainer::env::Scene;
+use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
+use dex_trainer::imitation::{ImitationConfig, ImitationEvent, run_imitation};
+
+use crate::config::TaskArg;
+
+/// `trainer imitate` flags (override the defaults of `ImitationConfig`).
+#[derive(Args, Debug)]
+pub struct ImitateArgs {
+    /// Task.
+    #[arg(long, value_enum, default_value_t = TaskArg::Grasp)]
+    task: TaskArg,
+    /// Demonstrator episodes of round 0.
+    #[arg(long)]
+    demo_episodes: Option<u32>,
+    /// DAgger rounds after round 0.
+    #[arg(long)]
+    rounds: Option<u32>,
+    /// Policy episodes labelled per DAgger round.
+    #[arg(long)]
+    episodes_per_round: Option<u32>,
+    /// Behaviour-cloning gradient steps per round.
+    #[arg(long)]
+    bc_steps: Option<u64>,
+    /// Hidden layer widths, comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    hidden: Option<Vec<usize>>,
+    /// Selection starts per round (seed 2,000,000).
+    #[arg(long)]
+    select_episodes: Option<u32>,
+    /// Seeds, comma-separated (one run folder each: OUT/seed-S).
+    #[arg(long, value_delimiter = ',', default_value = "0")]
+    seeds: Vec<u64>,
+    /// Episodes of the final evaluation of each exported policy (`trainer eval`'s seed 1,000,000).
+    #[arg(long, default_value_t = 100)]
+    final_eval_episodes: u32,
+    /// Output folder.
+    #[arg(long, default_value = "runs/imitate")]
+    out: PathBuf,
+    /// One line per round instead of progress bars.
+    #[arg(long)]
+    quiet: bool,
+}
+
+impl ImitateArgs {
+    /// The validated settings of seed `seed`.
+    fn settings(&self, seed: u64) -> anyhow::Result<ImitationConfig> {
+        let mut c = ImitationConfig {
+            task: self.task.task(),
+            seed,
+            ..ImitationConfig::default()
+        };
+        if let Some(v) = self.demo_episodes {
+            c.demo_episodes = v;
+        }
+        if let Some(v) = self.rounds {
+            c.rounds = v;
+        }
+        if let Some(v) = self.episodes_per_round {
+            c.episodes_per_round = v;
+        }
+        if let Some(v) = self.bc_steps {
+            c.bc.steps = v;
+        }
+        if let Some(v) = &self.hidden {
+            c.bc.hidden = v.clone();
+        }
+        if let Some(v) = self.select_episodes {
+            c.select_episodes = v;
+        }
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+/// Runs (resuming) every seed, then evaluates and plots.
+pub fn imitate(a: &ImitateArgs) -> anyhow::Result<()> {
+    let configs: Vec<ImitationConfig> = a
+        .seeds
+        .iter()
+        .map(|&s| a.settings(s))
+        .collect::<anyhow::Result<_>>()?;
+    let scene = Scene::load()
+        .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
+    for cfg in &configs {
+        let dir = a.out.join(format!("seed-{}", cfg.seed));
+        let pb: Option<ProgressBar> = (!a.quiet).then(|| {
+            crate::train::bar(
+                cfg.bc.steps,
+                false,
+                "{msg} [{elapsed_precise}] [{bar:30}] {pos}/{len}",
+            )
+        });
+        let start = std::time::Instant::now();
+        let summary = run_imitation(&scene, cfg, &dir, &mut |ev| match ev {
+            ImitationEvent::Recording { round, episodes } => {
+                let line = format!(
+                    "seed {} round {round}: recording {episodes} episodes",
+                    cfg.seed
+                );
+                match &pb {
+                    Some(pb) => pb.set_message(line),
+                    None => println!("{line}"),
+                }
+            }
+            ImitationEvent::Cloning { round, steps } => {
+                if let Some(pb) = &pb {
+                    pb.set_length(steps);
+                    pb.set_position(0);
+                    pb.set_message(format!("seed {} round {round}: cloning", cfg.seed));
+                }
+            }
+            ImitationEvent::CloneStep(step, _) => {
+                if let Some(pb) = &pb {
+                    pb.set_position(step);
+                }
+            }
+            ImitationEvent::Round(r) => {
+                let line = format!(
+                    "seed {} round {}: {} env steps, {} BC steps, {:.0} s: selection success {:.1}%",
+                    cfg.seed,
+                    r.eval_index,
+                    r.transitions,
+                    r.updates,
+                    r.wall_s,
+                    100.0 * r.success_rate
+                );
+                match &pb {
+                    Some(pb) => pb.println(line),
+                    None => println!("{line}"),
+                }
+            }
+        })?;
+        if let Some(pb) = pb {
+            pb.finish_and_clear();
+        }
+        println!(
+            "seed {}: best round {} -> {} ({:.0} s in this call)",
+            cfg.seed,
+            summary.best_round,
+            summary.policy.display(),
+            start.elapsed().as_secs_f64()
+        );
+        if a.final_eval_episodes > 0 {
+            let bytes = std::fs::read(&summary.policy)?;
+            let settings = EvalSettings {
+                env: dex_trainer::env::EnvConfig::new(cfg.task),
+                episodes: a.final_eval_episodes,
+                seed: 1_000_000,
+                threads: cfg.eval_threads,
+                can_quantisation: true,
+            };
+            let e = evaluate_policy_file(&bytes, &scene, &settings, &|| {})?;
+            println!(
+                "{} on {:?}, {} random starts from seed 1000000: {}",
+                summary.policy.display(),
+                cfg.task,
+                a.final_eval_episodes,
+                crate::train::describe(&e)
+            );
+        }
+    }
+    for f in crate::train::plot_run(&a.out)? {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,77 @@
+//! Behaviour cloning of recorded demonstrations into a policy file: the demonstrations' observations
+//! and labels go to [`crate::learn::bc::train_bc`], the cloned actor leaves through the exporter with
+//! its fixed input scaling, and the file is evaluated through the runtime like every other policy.
+
+use crate::demos::DemoSet;
+use crate::env::Task;
+use crate::export::{ExportError, ExportInfo, export_scaled_actor};
+use crate::learn::LearnError;
+use crate::learn::bc::{BcConfig, BcPolicy, train_bc};
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+
+/// Why cloning failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CloneError {
+    /// No demonstration rows were given.
+    #[error("no demonstration rows to clone")]
+    NoRows,
+    /// The demo sets are of different tasks than the one asked for.
+    #[error("demonstrations of task {found} given for a {wanted} policy")]
+    TaskMismatch {
+        /// Task of the policy.
+        wanted: &'static str,
+        /// Task of a demo set.
+        found: String,
+    },
+    /// The learner refused the data or the settings.
+    #[error("behaviour cloning: {0}")]
+    Learn(#[from] LearnError),
+    /// The exporter refused the actor.
+    #[error("export: {0}")]
+    Export(#[from] ExportError),
+}
+
+/// The observation and label rows of `sets` (all of `task`), flattened.
+pub fn clone_rows(sets: &[DemoSet], task: Task) -> Result<(Vec<f32>, Vec<f32>), CloneError> {
+    let wanted = crate::demos::task_name(task);
+    let mut obs = Vec::new();
+    let mut labels = Vec::new();
+    for s in sets {
+        if s.header.task != wanted {
+            return Err(CloneError::TaskMismatch {
+                wanted,
+                found: s.header.task.clone(),
+            });
+        }
+        for r in &s.rows {
+            obs.extend_from_slice(&r.obs);
+            labels.extend_from_slice(&r.label);
+        }
+    }
+    if obs.is_empty() {
+        return Err(CloneError::NoRows);
+    }
+    Ok((obs, labels))
+}
+
+/// Clones `sets` for `task` and exports the actor as a policy file (provenance: `cfg.seed`, the
+/// number of demonstration transitions). Returns the cloned actor and the file.
+pub fn clone_to_policy_file(
+    sets: &[DemoSet],
+    task: Task,
+    cfg: &BcConfig,
+    progress: &mut dyn FnMut(u64, f32),
+) -> Result<(BcPolicy, Vec<u8>), CloneError> {
+    let (obs, labels) = clone_rows(sets, task)?;
+    let policy = train_bc(&obs, &labels, OBS_DIM, ACT_DIM, cfg, progress)?;
+    let info = ExportInfo {
+        task,
+        seed: cfg.seed,
+        transitions: (obs.len() / OBS_DIM) as u64,
+        success_rate: None,
+        eval_episodes: 0,
+    };
+    let file = export_scaled_actor(&policy.actor, &policy.params, &policy.scaling, &info)?;
+    Ok((policy, file))
+}

@@ -1,0 +1,502 @@
+//! Demonstrations as data: episodes of a demonstrator (the scripted one or an exported policy)
+//! recorded transition by transition into a versioned, checksummed file under a run folder.
+//!
+//! Recording can inject noise into the *executed* action while storing the demonstrator's clean
+//! action as the label (DART, Laskey et al. 2017): the data then covers states a little off the
+//! demonstrator's path, each labelled with how the demonstrator recovers from it, which is what a
+//! cloned policy meets when its own small errors compound. The executed action is kept too, so the
+//! transitions are the environment's real `(s, a, r, s')` for an off-policy learner's demo buffer.
+//!
+//! File format (little-endian): magic `DXDEMO01`; a JSON header ([`DemoHeader`]: task, observation
+//! and action layout hash, sizes, how it was recorded); then per row `obs | label | executed | reward
+//! | next_obs | flags` as f32 (flags bit 0: last step of its episode); finally a CRC-32 (ISO-HDLC)
+//! of everything before it. Loading checks all of it and names what does not match.
+
+use std::path::Path;
+
+use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
+use serde::{Deserialize, Serialize};
+
+use crate::env::{Demonstration, EnvConfig, EnvError, JacoEnv, Scene, Task};
+use crate::evaluate::episode_seed;
+use crate::learn::Rng;
+use crate::policy_demo::{DemoSource, PolicyDemonstration};
+
+const MAGIC: &[u8; 8] = b"DXDEMO01";
+/// Version of the demo file format written by this build.
+pub const DEMO_FORMAT_VERSION: u32 = 1;
+/// Start seed of recorded demonstrations: apart from evaluation (1,000,000 / 3,000,000), checkpoint
+/// selection (2,000,000), held-out observations (7,000,000) and calibration (8,000,000).
+pub const DEMO_SEED: u64 = 5_000_000;
+const ROW: usize = OBS_DIM + ACT_DIM + ACT_DIM + 1 + OBS_DIM + 1;
+const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Why demonstrations could not be recorded, saved or loaded.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DemoError {
+    /// Reading or writing the file failed.
+    #[error("demo file {path}: {source}")]
+    Io {
+        /// File involved.
+        path: std::path::PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// The file is not a demo file, is truncated or damaged.
+    #[error("demo file {path} is not usable: {why}")]
+    Corrupt {
+        /// File involved.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        why: String,
+    },
+    /// The file was recorded for something else than what it is used for.
+    #[error("demo file {path} does not match: {why}")]
+    Mismatch {
+        /// File involved.
+        path: std::path::PathBuf,
+        /// What differs.
+        why: String,
+    },
+    /// A recording setting is out of range.
+    #[error("demo recording: {0}")]
+    Settings(String),
+    /// The simulation failed while recording.
+    #[error("simulation: {0}")]
+    Env(#[from] EnvError),
+}
+
+/// How demonstrations were (or are to be) recorded.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RecordSettings {
+    /// Task (start states and success).
+    pub task: Task,
+    /// Episodes to record.
+    pub episodes: u32,
+    /// Episode `i` starts from `episode_seed(seed, i)`.
+    pub seed: u64,
+    /// Standard deviation of Gaussian noise added to the executed arm actions (0: none).
+    pub arm_noise: f32,
+    /// Standard deviation of the noise on the executed finger actions.
+    pub finger_noise: f32,
+    /// Keep only episodes that end in success.
+    pub successes_only: bool,
+    /// Who drives the episodes (the demonstrator always labels).
+    #[serde(default)]
+    pub mode: RecordMode,
+}
+
+/// Who acts in a recorded episode; the demonstrator labels every recorded state either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RecordMode {
+    /// The demonstrator acts (plus the recording noise).
+    #[default]
+    Demonstrator,
+    /// A learned policy acts for `k` steps, `k` uniform in `0..=max_step`, then the demonstrator
+    /// takes over from that state (a phase machine restarts in the phase that fits it) with a
+    /// fresh step budget; only the demonstrator's part is recorded.
+    Takeover {
+        /// Last step at which the demonstrator may take over.
+        max_step: u32,
+    },
+    /// DAgger (Ross et al. 2011): the learned policy acts for the whole episode, every state it
+    /// visits is labelled with the demonstrator's action. Needs a demonstrator whose action depends
+    /// on the state alone ([`crate::env::MarkovDemonstrator`]).
+    Dagger,
+}
+
+impl RecordSettings {
+    /// 200 clean successful episodes of `task` from [`DEMO_SEED`].
+    pub fn new(task: Task) -> Self {
+        Self {
+            task,
+            episodes: 200,
+            seed: DEMO_SEED,
+            arm_noise: 0.0,
+            finger_noise: 0.0,
+            successes_only: true,
+            mode: RecordMode::Demonstrator,
+        }
+    }
+
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), DemoError> {
+        if self.episodes == 0 {
+            return Err(DemoError::Settings("episodes must be at least 1".into()));
+        }
+        for (name, v) in [
+            ("arm noise", self.arm_noise),
+            ("finger noise", self.finger_noise),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(DemoError::Settings(format!(
+                    "{name} {v} is outside [0, 1] (a standard deviation in action units)"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Header of a demo file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoHeader {
+    /// Format version.
+    pub version: u32,
+    /// Task name (`grasp`, `stack-in-hand`, `stack`, `reach`).
+    pub task: String,
+    /// Observation and action layout hash of the runtime interface it was recorded with.
+    pub layout_hash: u32,
+    /// Observation width.
+    pub obs_dim: usize,
+    /// Action width.
+    pub act_dim: usize,
+    /// What demonstrated: `scripted` or `policy`.
+    pub source: String,
+    /// How it was recorded.
+    pub settings: RecordSettings,
+    /// Episodes tried and episodes that ended in success.
+    pub tried: u32,
+    /// Successful episodes among the tried ones.
+    pub successes: u32,
+    /// Episodes stored.
+    pub episodes: u32,
+    /// Environment steps simulated for the file (policy steps before a takeover and dropped
+    /// episodes included): the data's cost in transitions.
+    #[serde(default)]
+    pub env_steps: u64,
+}
+
+/// One recorded transition.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DemoRow {
+    /// Observation before the step.
+    pub obs: [f32; OBS_DIM],
+    /// The demonstrator's own action (the label for cloning).
+    pub label: [f32; ACT_DIM],
+    /// The action the environment executed (label plus noise, clipped to [-1, 1]).
+    pub executed: [f32; ACT_DIM],
+    /// Reward of the step under the task's own reward.
+    pub reward: f32,
+    /// Observation after the step.
+    pub next_obs: [f32; OBS_DIM],
+    /// Last step of its episode (a time limit: bootstrap through it).
+    pub last: bool,
+}
+
+/// Recorded demonstrations: a header and the rows of every stored episode, in order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoSet {
+    /// What and how.
+    pub header: DemoHeader,
+    /// The transitions.
+    pub rows: Vec<DemoRow>,
+}
+
+/// The interface's observation and action layout hash (what a policy file of this build carries).
+pub fn interface_layout_hash() -> u32 {
+    dex_policy::layout_hash(
+        OBSERVATION_FIELDS.iter().map(|f| (f.name, f.size)),
+        ACTION_JOINTS.iter().map(|j| j.name),
+    )
+}
+
+/// The command-line name of a task.
+pub fn task_name(task: Task) -> &'static str {
+    match task {
+        Task::Grasp => "grasp",
+        Task::StackInHand => "stack-in-hand",
+        Task::Stack => "stack",
+        Task::Reach => "reach",
+    }
+}
+
+/// Records `settings.episodes` episodes of `source` (restarted per episode) on `scene`, calling
+/// `on_episode` after each. Episodes that end in failure are dropped if `successes_only`.
+pub fn record(
+    scene: &Scene,
+    source: &DemoSource,
+    settings: &RecordSettings,
+    on_episode: &dyn Fn(),
+) -> Result<DemoSet, DemoError> {
+    record_with(scene, None, source, settings, on_episode)
+}
+
+/// [`record`] with a learned policy `lead` acting as `settings.mode` says (takeover or DAgger);
+/// `source` labels.
+pub fn record_with(
+    scene: &Scene,
+    lead: Option<&PolicyDemonstration>,
+    source: &DemoSource,
+    settings: &RecordSettings,
+    on_episode: &dyn Fn(),
+) -> Result<DemoSet, DemoError> {
+    settings.validate()?;
+    let mut lead = match (lead, settings.mode) {
+        (_, RecordMode::Demonstrator) => None,
+        (Some(p), _) => Some(p.clone()),
+        (None, _) => {
+            return Err(DemoError::Settings(format!(
+                "{:?} recording needs a policy to act",
+                settings.mode
+            )));
+        }
+    };
+    if settings.mode == RecordMode::Dagger && matches!(source, DemoSource::Scripted(_)) {
+        return Err(DemoError::Settings(
+            "DAgger needs a labeller whose action depends on the state alone (the Markov \
+             demonstrator or a policy), not the phase machine"
+                .into(),
+        ));
+    }
+    let mut env_steps = 0u64;
+    let config = EnvConfig::new(settings.task);
+    let mut env = JacoEnv::new(scene, config);
+    let mut demo = source.clone();
+    let mut rows = Vec::new();
+    let mut stored = 0u32;
+    let mut successes = 0u32;
+    for i in 0..settings.episodes {
+        let seed = episode_seed(settings.seed, u64::from(i));
+        let mut noise = Rng::derive(seed, 0xDA27);
+        let mut obs = env.reset(seed)?;
+        demo.restart();
+        if let (Some(policy), RecordMode::Takeover { max_step }) = (lead.as_mut(), settings.mode) {
+            let mut pick = Rng::derive(seed, 0x7A4E);
+            let k = pick.below(max_step as usize + 1) as u32;
+            policy.restart();
+            for _ in 0..k {
+                let a = policy.act(&env)?;
+                env.step(&a)?;
+                env_steps += 1;
+            }
+            if let DemoSource::Scripted(d) = &mut demo {
+                d.restart_from_state(&env);
+            }
+            obs = env.begin_episode();
+        }
+        let mut episode = Vec::with_capacity(config.episode_steps as usize);
+        loop {
+            let label = demo.act(&env)?;
+            let driven = match (lead.as_mut(), settings.mode) {
+                (Some(policy), RecordMode::Dagger) => Some(policy.act(&env)?),
+                _ => None,
+            };
+            let base = driven.unwrap_or(label);
+            let executed: [f32; ACT_DIM] = std::array::from_fn(|j| {
+                let sd = if j < 6 {
+                    settings.arm_noise
+                } else {
+                    settings.finger_noise
+                };
+                let n = if sd > 0.0 { noise.normal(0.0, sd) } else { 0.0 };
+                (base[j].clamp(-1.0, 1.0) + n).clamp(-1.0, 1.0)
+            });
+            let out = env.step(&executed)?;
+            env_steps += 1;
+            episode.push(DemoRow {
+                obs,
+                label: label.map(|a| a.clamp(-1.0, 1.0)),
+                executed,
+                reward: out.reward,
+                next_obs: out.observation,
+                last: out.done,
+            });
+            obs = out.observation;
+            if out.done {
+                successes += u32::from(out.success);
+                if out.success || !settings.successes_only {
+                    rows.extend(episode);
+                    stored += 1;
+                }
+                break;
+            }
+        }
+        on_episode();
+    }
+    Ok(DemoSet {
+        header: DemoHeader {
+            version: DEMO_FORMAT_VERSION,
+            task: task_name(settings.task).to_owned(),
+            layout_hash: interface_layout_hash(),
+            obs_dim: OBS_DIM,
+            act_dim: ACT_DIM,
+            source: format!(
+                "{}{}",
+                match source {
+                    DemoSource::Scripted(_) => "scripted",
+                    DemoSource::Markov(_) => "markov",
+                    DemoSource::Policy(_) => "policy",
+                },
+                match settings.mode {
+                    RecordMode::Demonstrator => "",
+                    RecordMode::Takeover { .. } => ", taking over from a policy",
+                    RecordMode::Dagger => ", labelling a policy's states (DAgger)",
+                }
+            ),
+            settings: *settings,
+            tried: settings.episodes,
+            successes,
+            episodes: stored,
+            env_steps,
+        },
+        rows,
+    })
+}
+
+impl DemoSet {
+    /// The file's bytes.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let header = serde_json::to_vec(&self.header).unwrap_or_default();
+        let mut buf = Vec::with_capacity(24 + header.len() + self.rows.len() * ROW * 4);
+        buf.extend_from_slice(MAGIC);
+        buf.extend_from_slice(&(header.len() as u64).to_le_bytes());
+        buf.extend_from_slice(&header);
+        buf.extend_from_slice(&(self.rows.len() as u64).to_le_bytes());
+        let mut put = |v: f32| buf.extend_from_slice(&v.to_le_bytes());
+        for r in &self.rows {
+            r.obs.iter().for_each(|&v| put(v));
+            r.label.iter().for_each(|&v| put(v));
+            r.executed.iter().for_each(|&v| put(v));
+            put(r.reward);
+            r.next_obs.iter().for_each(|&v| put(v));
+            put(if r.last { 1.0 } else { 0.0 });
+        }
+        let crc = CRC.checksum(&buf);
+        buf.extend_from_slice(&crc.to_le_bytes());
+        buf
+    }
+
+    /// Writes the file atomically (`PATH.tmp`, then renamed).
+    pub fn save(&self, path: &Path) -> Result<(), DemoError> {
+        let io = |source| DemoError::Io {
+            path: path.to_owned(),
+            source,
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(io)?;
+        }
+        let tmp = path.with_extension("tmp");
+        std::fs::write(&tmp, self.to_bytes()).map_err(io)?;
+        std::fs::rename(&tmp, path).map_err(io)
+    }
+
+    /// Parses a file's bytes (`path` only names it in errors); checks magic, checksum, version,
+    /// sizes and the layout hash of this build's interface.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, DemoError> {
+        let corrupt = |why: &str| DemoError::Corrupt {
+            path: path.to_owned(),
+            why: why.to_owned(),
+        };
+        if bytes.len() < 8 + 8 + 8 + 4 || &bytes[..8] != MAGIC {
+            return Err(corrupt(
+                "no demo-file magic (DXDEMO01) or shorter than a header",
+            ));
+        }
+        let (body, tail) = bytes.split_at(bytes.len() - 4);
+        let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
+        if CRC.checksum(body) != stored {
+            return Err(corrupt("checksum mismatch (truncated or damaged)"));
+        }
+        let u64_at = |at: usize| -> Result<u64, DemoError> {
+            body.get(at..at + 8)
+                .and_then(|b| b.try_into().ok())
+                .map(u64::from_le_bytes)
+                .ok_or_else(|| corrupt("ends early"))
+        };
+        let hlen = usize::try_from(u64_at(8)?).map_err(|_| corrupt("header length"))?;
+        let header_bytes = body
+            .get(16..16usize.saturating_add(hlen))
+            .ok_or_else(|| corrupt("header ends early"))?;
+        let header: DemoHeader =
+            serde_json::from_slice(header_bytes).map_err(|e| corrupt(&format!("header: {e}")))?;
+        let mismatch = |why: String| DemoError::Mismatch {
+            path: path.to_owned(),
+            why,
+        };
+        if header.version != DEMO_FORMAT_VERSION {
+            return Err(mismatch(format!(
+                "format version {} (this build reads {DEMO_FORMAT_VERSION})",
+                header.version
+            )));
+        }
+        if header.obs_dim != OBS_DIM
+            || header.act_dim != ACT_DIM
+            || header.layout_hash != interface_layout_hash()
+        {
+            return Err(mismatch(format!(
+                "observation/action layout {}x{} hash {:#010x}, this build's is {OBS_DIM}x{ACT_DIM} hash {:#010x}",
+                header.obs_dim,
+                header.act_dim,
+                header.layout_hash,
+                interface_layout_hash()
+            )));
+        }
+        let at = 16 + hlen;
+        let n = usize::try_from(u64_at(at)?).map_err(|_| corrupt("row count"))?;
+        let data = &body[at + 8..];
+        if Some(data.len()) != n.checked_mul(ROW * 4) {
+            return Err(corrupt("row data length does not match the row count"));
+        }
+        let mut rows = Vec::with_capacity(n);
+        let mut vals = data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
+        let mut take = || vals.next().unwrap_or(f32::NAN);
+        for _ in 0..n {
+            let obs = std::array::from_fn(|_| take());
+            let label = std::array::from_fn(|_| take());
+            let executed = std::array::from_fn(|_| take());
+            let reward = take();
+            let next_obs = std::array::from_fn(|_| take());
+            let last = take() != 0.0;
+            rows.push(DemoRow {
+                obs,
+                label,
+                executed,
+                reward,
+                next_obs,
+                last,
+            });
+        }
+        if rows.iter().any(|r| {
+            r.obs.iter().chain(&r.next_obs).any(|v| !v.is_finite())
+                || r.label
+                    .iter()
+                    .chain(&r.executed)
+                    .any(|v| !(-1.0..=1.0).contains(v))
+                || !r.reward.is_finite()
+        }) {
+            return Err(corrupt(
+                "a row holds a non-finite value or an action outside [-1, 1]",
+            ));
+        }
+        Ok(Self { header, rows })
+    }
+
+    /// Loads and checks a demo file.
+    pub fn load(path: &Path) -> Result<Self, DemoError> {
+        let bytes = std::fs::read(path).map_err(|source| DemoError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Checks that the file was recorded for `task`.
+    pub fn check_task(&self, task: Task, path: &Path) -> Result<(), DemoError> {
+        if self.header.task != task_name(task) {
+            return Err(DemoError::Mismatch {
+                path: path.to_owned(),
+                why: format!(
+                    "recorded for task {}, the run is for {}",
+                    self.header.task,
+                    task_name(task)
+                ),
+            });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,326 @@
+//! The imitation learner: behaviour cloning of the Markov demonstrator, then DAgger rounds (Ross et
+//! et al. 2011) in which the cloned policy drives episodes and the demonstrator labels every state
+//! it visits; after each round the policy is cloned again on all data so far, exported, and scored
+//! through the runtime on fixed selection starts. The best round's file is the run's policy.
+//!
+//! Run folder: `settings.json` (the [`ImitationConfig`]), `demos-R.dxdm` (round 0: the
+//! demonstrator's own episodes; later rounds: DAgger), `policy-R.dxpl`, `eval.jsonl` (one
+//! [`EvalRecord`] per round: environment steps and BC gradient steps so far, wall-clock, success on
+//! the selection starts) and `policy.dxpl` (the best round). Each file is written whole (demo files
+//! atomically), so a killed run resumes at the first round whose policy is missing.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::cloning::{CloneError, clone_to_policy_file};
+use crate::demos::{DEMO_SEED, DemoError, DemoSet, RecordMode, RecordSettings, record_with};
+use crate::env::{MarkovDemonstrator, Scene, Task};
+use crate::evaluate::{EvalError, EvalSettings, evaluate_policy_file};
+use crate::learn::EvalRecord;
+use crate::learn::bc::BcConfig;
+use crate::policy_demo::{DemoSource, PolicyDemonstration};
+
+/// Start seed of the per-round selection evaluation (checkpoint selection's seed, apart from
+/// `trainer eval`'s 1,000,000 and Table II's 3,000,000).
+pub const SELECTION_SEED: u64 = 2_000_000;
+
+/// Settings of an imitation run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImitationConfig {
+    /// Task.
+    pub task: Task,
+    /// Demonstrator episodes of round 0.
+    pub demo_episodes: u32,
+    /// DAgger rounds after round 0.
+    pub rounds: u32,
+    /// Policy episodes labelled per DAgger round.
+    pub episodes_per_round: u32,
+    /// Noise on the executed arm actions while recording (DART), action units.
+    pub arm_noise: f32,
+    /// Noise on the executed finger actions while recording.
+    pub finger_noise: f32,
+    /// Behaviour cloning settings (its seed is the run's seed).
+    pub bc: BcConfig,
+    /// Selection starts per round (0: keep the last round).
+    pub select_episodes: u32,
+    /// Seed of the run (demonstration starts, network initialisation, sampling).
+    pub seed: u64,
+    /// Threads of the selection evaluation.
+    pub eval_threads: usize,
+}
+
+impl Default for ImitationConfig {
+    /// Grasp, 100 demonstrations, 4 DAgger rounds of 50 episodes, no recording noise, selection
+    /// over 100 starts (see docs/experiments.md, "Imitation").
+    fn default() -> Self {
+        Self {
+            task: Task::Grasp,
+            demo_episodes: 100,
+            rounds: 4,
+            episodes_per_round: 50,
+            arm_noise: 0.0,
+            finger_noise: 0.0,
+            bc: BcConfig::default(),
+            select_episodes: 100,
+            seed: 0,
+            eval_threads: 2,
+        }
+    }
+}
+
+impl ImitationConfig {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), ImitationError> {
+        if self.demo_episodes == 0 {
+            return Err(ImitationError::Settings(
+                "demo_episodes must be at least 1".into(),
+            ));
+        }
+        if self.rounds > 0 && self.episodes_per_round == 0 {
+            return Err(ImitationError::Settings(
+                "episodes_per_round must be at least 1 when there are DAgger rounds".into(),
+            ));
+        }
+        self.bc
+            .validate()
+            .map_err(|e| ImitationError::Settings(e.to_string()))?;
+        self.recording(0).validate()?;
+        Ok(())
+    }
+
+    /// How round `round` is recorded (round 0: the demonstrator; then DAgger).
+    pub fn recording(&self, round: u32) -> RecordSettings {
+        RecordSettings {
+            task: self.task,
+            episodes: if round == 0 {
+                self.demo_episodes
+            } else {
+                self.episodes_per_round
+            },
+            seed: DEMO_SEED + self.seed * 1_000 + u64::from(round),
+            arm_noise: self.arm_noise,
+            finger_noise: self.finger_noise,
+            successes_only: round == 0,
+            mode: if round == 0 {
+                RecordMode::Demonstrator
+            } else {
+                RecordMode::Dagger
+            },
+        }
+    }
+}
+
+/// Why an imitation run failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ImitationError {
+    /// A setting is out of range.
+    #[error("imitation settings: {0}")]
+    Settings(String),
+    /// The run folder holds a run with other settings.
+    #[error(
+        "{0} holds a run with other settings (settings.json differs); use another folder or remove it"
+    )]
+    SettingsChanged(PathBuf),
+    /// Reading or writing a run file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// File involved.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// Recording or loading demonstrations failed.
+    #[error(transparent)]
+    Demos(#[from] DemoError),
+    /// Cloning failed.
+    #[error(transparent)]
+    Clone(#[from] CloneError),
+    /// Evaluating a policy file failed.
+    #[error("evaluation: {0}")]
+    Eval(#[from] EvalError),
+}
+
+/// What a run reports while it works.
+#[derive(Debug, Clone, Copy)]
+pub enum ImitationEvent<'a> {
+    /// A round starts recording `episodes` episodes.
+    Recording {
+        /// Round number.
+        round: u32,
+        /// Episodes to record.
+        episodes: u32,
+    },
+    /// Cloning started (`steps` gradient steps).
+    Cloning {
+        /// Round number.
+        round: u32,
+        /// Gradient steps.
+        steps: u64,
+    },
+    /// Cloning progress: gradient step and recent loss.
+    CloneStep(u64, f32),
+    /// A round's policy was scored (or loaded from an earlier call).
+    Round(&'a EvalRecord),
+}
+
+/// The outcome of a run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImitationSummary {
+    /// One record per round.
+    pub records: Vec<EvalRecord>,
+    /// Round whose policy is `policy.dxpl`.
+    pub best_round: u32,
+    /// Where it is.
+    pub policy: PathBuf,
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ImitationError + '_ {
+    move |source| ImitationError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImitationError> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+/// Runs (or resumes) an imitation run in `dir`.
+pub fn run_imitation(
+    scene: &Scene,
+    cfg: &ImitationConfig,
+    dir: &Path,
+    on_event: &mut dyn FnMut(ImitationEvent<'_>),
+) -> Result<ImitationSummary, ImitationError> {
+    cfg.validate()?;
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let settings_path = dir.join("settings.json");
+    let settings = serde_json::to_string_pretty(cfg).unwrap_or_default();
+    match std::fs::read_to_string(&settings_path) {
+        Ok(old) if old != settings => return Err(ImitationError::SettingsChanged(dir.to_owned())),
+        Ok(_) => {}
+        Err(_) => write_atomic(&settings_path, settings.as_bytes())?,
+    }
+    let expert = DemoSource::Markov(MarkovDemonstrator::new(cfg.task));
+    let bc = BcConfig {
+        seed: cfg.seed,
+        ..cfg.bc.clone()
+    };
+    let eval = EvalSettings {
+        env: crate::env::EnvConfig::new(cfg.task),
+        episodes: cfg.select_episodes,
+        seed: SELECTION_SEED,
+        threads: cfg.eval_threads,
+        can_quantisation: true,
+    };
+    let log_path = dir.join("eval.jsonl");
+    let mut records: Vec<EvalRecord> = match std::fs::read_to_string(&log_path) {
+        Ok(text) => text
+            .lines()
+            .filter_map(|l| serde_json::from_str(l).ok())
+            .collect(),
+        Err(_) => Vec::new(),
+    };
+    let mut sets: Vec<DemoSet> = Vec::new();
+    let mut policy: Option<Vec<u8>> = None;
+    let (mut env_steps, mut bc_steps) = (0u64, 0u64);
+    for round in 0..=cfg.rounds {
+        let demo_path = dir.join(format!("demos-{round}.dxdm"));
+        let policy_path = dir.join(format!("policy-{round}.dxpl"));
+        let started = Instant::now();
+        let set = if demo_path.exists() {
+            let s = DemoSet::load(&demo_path)?;
+            s.check_task(cfg.task, &demo_path)?;
+            s
+        } else {
+            let rec = cfg.recording(round);
+            on_event(ImitationEvent::Recording {
+                round,
+                episodes: rec.episodes,
+            });
+            let lead = match &policy {
+                Some(bytes) if round > 0 => Some(PolicyDemonstration::from_file_bytes(bytes)?),
+                _ => None,
+            };
+            let s = record_with(scene, lead.as_ref(), &expert, &rec, &|| {})?;
+            s.save(&demo_path)?;
+            s
+        };
+        env_steps += set.header.env_steps;
+        sets.push(set);
+        let file =
+            if policy_path.exists() && records.iter().any(|r| r.eval_index == u64::from(round)) {
+                std::fs::read(&policy_path).map_err(io(&policy_path))?
+            } else {
+                on_event(ImitationEvent::Cloning {
+                    round,
+                    steps: bc.steps,
+                });
+                let (_, file) = clone_to_policy_file(&sets, cfg.task, &bc, &mut |step, loss| {
+                    on_event(ImitationEvent::CloneStep(step, loss));
+                })?;
+                write_atomic(&policy_path, &file)?;
+                let (mean_return, success_rate) = if cfg.select_episodes > 0 {
+                    let e = evaluate_policy_file(&file, scene, &eval, &|| {})?;
+                    (e.mean_return, e.success_rate())
+                } else {
+                    (0.0, 0.0)
+                };
+                let prev_wall = records
+                    .iter()
+                    .rfind(|r| r.eval_index + 1 == u64::from(round))
+                    .map_or(0.0, |r| r.wall_s);
+                let rec = EvalRecord {
+                    eval_index: u64::from(round),
+                    episodes: sets.iter().map(|s| u64::from(s.header.tried)).sum(),
+                    transitions: env_steps,
+                    transitions_per_worker: vec![env_steps],
+                    updates: bc_steps + bc.steps,
+                    wall_s: prev_wall + started.elapsed().as_secs_f64(),
+                    mean_return,
+                    success_rate,
+                    train_return: 0.0,
+                    worker: 0,
+                };
+                records.retain(|r| r.eval_index != u64::from(round));
+                records.push(rec);
+                let mut log = String::new();
+                for r in &records {
+                    log.push_str(&r.to_json_line());
+                    log.push('\n');
+                }
+                write_atomic(&log_path, log.as_bytes())?;
+                file
+            };
+        bc_steps += bc.steps;
+        if let Some(r) = records.iter().find(|r| r.eval_index == u64::from(round)) {
+            on_event(ImitationEvent::Round(r));
+        }
+        policy = Some(file);
+    }
+    // The best round on the selection starts (the later one on ties: it saw more data).
+    let best = records
+        .iter()
+        .filter(|r| r.eval_index <= u64::from(cfg.rounds))
+        .max_by(|a, b| {
+            a.success_rate
+                .total_cmp(&b.success_rate)
+                .then(a.eval_index.cmp(&b.eval_index))
+        })
+        .map_or(u64::from(cfg.rounds), |r| r.eval_index) as u32;
+    let best_path = dir.join(format!("policy-{best}.dxpl"));
+    let out = dir.join("policy.dxpl");
+    let bytes = std::fs::read(&best_path).map_err(io(&best_path))?;
+    write_atomic(&out, &bytes)?;
+    Ok(ImitationSummary {
+        records,
+        best_round: best,
+        policy: out,
+    })
+}

@@ -1,0 +1,102 @@
+//! The imitation learner end to end at toy size: round 0 clones the Markov demonstrator, a DAgger
+//! round labels the policy's own states, every round leaves its files, a resumed run redoes nothing
+//! and a run folder with other settings is refused (needs `scripts/setup-mujoco.sh` to have run).
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use dex_trainer::demos::{DemoSet, RecordMode};
+use dex_trainer::env::{Scene, Task};
+use dex_trainer::imitation::{ImitationConfig, ImitationError, run_imitation};
+use dex_trainer::learn::bc::BcConfig;
+
+fn tiny() -> ImitationConfig {
+    ImitationConfig {
+        task: Task::Grasp,
+        demo_episodes: 3,
+        rounds: 1,
+        episodes_per_round: 2,
+        bc: BcConfig {
+            hidden: vec![32],
+            steps: 300,
+            batch: 64,
+            ..BcConfig::default()
+        },
+        select_episodes: 2,
+        ..ImitationConfig::default()
+    }
+}
+
+#[test]
+fn rounds_leave_their_files_and_resume() {
+    let scene = Scene::load().unwrap();
+    let dir = std::env::temp_dir().join(format!("dex-imitate-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let cfg = tiny();
+    let mut rounds = 0;
+    let s = run_imitation(&scene, &cfg, &dir, &mut |e| {
+        if let dex_trainer::imitation::ImitationEvent::Round(_) = e {
+            rounds += 1;
+        }
+    })
+    .unwrap();
+    assert_eq!(rounds, 2);
+    assert_eq!(s.records.len(), 2);
+    assert!(s.records[1].transitions > s.records[0].transitions);
+    assert_eq!(
+        s.records[1].updates, 600,
+        "BC steps are counted over rounds"
+    );
+    let d0 = DemoSet::load(&dir.join("demos-0.dxdm")).unwrap();
+    let d1 = DemoSet::load(&dir.join("demos-1.dxdm")).unwrap();
+    assert_eq!(d0.header.settings.mode, RecordMode::Demonstrator);
+    assert_eq!(d1.header.settings.mode, RecordMode::Dagger);
+    assert_eq!(d1.header.episodes, 2, "DAgger keeps failed episodes too");
+    assert_eq!(d1.rows.len(), 300);
+    assert!(
+        d1.rows.iter().any(|r| r.label != r.executed),
+        "the policy acts, the demonstrator labels"
+    );
+    let policy = std::fs::read(&s.policy).unwrap();
+    dex_policy::PolicyView::decode(dex_runtime::testkit::aligned_copy(&policy).as_bytes()).unwrap();
+    // Resuming a finished run does no work and keeps the same policy.
+    let mut events = 0;
+    let again = run_imitation(&scene, &cfg, &dir, &mut |e| {
+        if !matches!(e, dex_trainer::imitation::ImitationEvent::Round(_)) {
+            events += 1;
+        }
+    })
+    .unwrap();
+    assert_eq!(events, 0, "nothing recorded or cloned again");
+    assert_eq!(std::fs::read(&again.policy).unwrap(), policy);
+    assert_eq!(again.records, s.records);
+    // Other settings in the same folder are refused before anything is touched.
+    let other = ImitationConfig {
+        rounds: 2,
+        ..cfg.clone()
+    };
+    let e = run_imitation(&scene, &other, &dir, &mut |_| {}).unwrap_err();
+    assert!(matches!(e, ImitationError::SettingsChanged(_)), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_settings_are_refused() {
+    let bad = ImitationConfig {
+        demo_episodes: 0,
+        ..tiny()
+    };
+    assert!(bad.validate().is_err());
+    let bad = ImitationConfig {
+        bc: BcConfig {
+            label_clip: 0.0,
+            ..BcConfig::default()
+        },
+        ..tiny()
+    };
+    assert!(bad.validate().is_err());
+    let bad = ImitationConfig {
+        arm_noise: -1.0,
+        ..tiny()
+    };
+    assert!(bad.validate().is_err());
+}
