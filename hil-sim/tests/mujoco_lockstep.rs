@@ -90,3 +90,37 @@ fn trained_int8_policy_over_the_bus_scores_like_trainer_eval() {
         "a trained policy reaches"
     );
 }
+
+#[test]
+fn shipped_grasp_policy_over_the_bus_scores_like_trainer_eval() {
+    // The shipped Grasp policy (policies/grasp.dxpl, cloned from the Markov demonstrator) behind
+    // the CAN interface with the MuJoCo plant: every episode's return and success equal what
+    // `trainer eval` measures for the same start seeds, and it grasps.
+    use dex_trainer::env::{EnvConfig, Scene};
+    use dex_trainer::evaluate::{EvalSettings, episode_outcomes, episode_seed};
+    let file = include_bytes!("../../policies/grasp.dxpl");
+    let episodes = 4;
+    let seeds: Vec<(u64, u32)> = (0..episodes)
+        .map(|i| (episode_seed(1_000_000, i), u32::MAX))
+        .collect();
+    let mut plant = MujocoPlant::new(Task::Grasp).unwrap();
+    let (_, reports) = common::lockstep_over_the_bus(file, &mut plant, &seeds);
+    let settings = EvalSettings {
+        env: EnvConfig::new(Task::Grasp),
+        episodes: episodes as u32,
+        seed: 1_000_000,
+        threads: 1,
+        can_quantisation: true,
+    };
+    let expected = episode_outcomes(file, &Scene::load().unwrap(), &settings, &|| {}).unwrap();
+    assert_eq!(reports.len(), expected.len());
+    for (r, (ret, success)) in reports.iter().zip(&expected) {
+        assert_eq!(r.episode_return.to_bits(), ret.to_bits());
+        assert_eq!(r.success, *success);
+        assert_eq!(r.steps_without_action, 0);
+    }
+    assert!(
+        reports.iter().filter(|r| r.success).count() >= 3,
+        "the shipped Grasp policy grasps"
+    );
+}

@@ -485,6 +485,24 @@ impl DemoSet {
         Self::from_bytes(&bytes, path)
     }
 
+    /// The first `n` episodes (all if there are fewer), for data-size studies.
+    pub fn first_episodes(&self, n: u32) -> DemoSet {
+        let mut left = n;
+        let mut rows = Vec::new();
+        for r in &self.rows {
+            if left == 0 {
+                break;
+            }
+            rows.push(*r);
+            if r.last {
+                left -= 1;
+            }
+        }
+        let mut header = self.header.clone();
+        header.episodes = n.min(self.header.episodes);
+        DemoSet { header, rows }
+    }
+
     /// Checks that the file was recorded for `task`.
     pub fn check_task(&self, task: Task, path: &Path) -> Result<(), DemoError> {
         if self.header.task != task_name(task) {

@@ -46,6 +46,10 @@ fn recording_is_deterministic_and_round_trips() {
     assert!(a.rows.iter().any(|r| r.label != r.executed));
     // Each row's next observation is the following row's observation inside an episode.
     assert_eq!(a.rows[0].next_obs, a.rows[1].obs);
+    let one = a.first_episodes(1);
+    assert_eq!(one.rows.len(), 150);
+    assert_eq!(one.rows[..], a.rows[..150]);
+    assert_eq!(a.first_episodes(9).rows.len(), 300);
     let dir = std::env::temp_dir().join(format!("dex-demos-{}", std::process::id()));
     let path = dir.join("g.dxdm");
     a.save(&path).unwrap();

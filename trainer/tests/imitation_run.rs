@@ -13,6 +13,7 @@ fn tiny() -> ImitationConfig {
     ImitationConfig {
         task: Task::Grasp,
         demo_episodes: 3,
+        dart_episodes: 2,
         rounds: 1,
         episodes_per_round: 2,
         bc: BcConfig {
@@ -47,8 +48,17 @@ fn rounds_leave_their_files_and_resume() {
         "BC steps are counted over rounds"
     );
     let d0 = DemoSet::load(&dir.join("demos-0.dxdm")).unwrap();
+    let dart = DemoSet::load(&dir.join("demos-0-dart.dxdm")).unwrap();
     let d1 = DemoSet::load(&dir.join("demos-1.dxdm")).unwrap();
     assert_eq!(d0.header.settings.mode, RecordMode::Demonstrator);
+    assert_eq!(d0.header.settings.arm_noise, 0.0);
+    assert!(d0.rows.iter().all(|r| r.label == r.executed), "clean");
+    assert!(dart.header.settings.arm_noise > 0.0);
+    assert!(
+        dart.rows.iter().any(|r| r.label != r.executed),
+        "DART noise"
+    );
+    assert_ne!(d0.rows[0].obs, dart.rows[0].obs, "own start seeds");
     assert_eq!(d1.header.settings.mode, RecordMode::Dagger);
     assert_eq!(d1.header.episodes, 2, "DAgger keeps failed episodes too");
     assert_eq!(d1.rows.len(), 300);

@@ -78,6 +78,9 @@ pub struct CloneArgs {
     /// Task (default: the demo files').
     #[arg(long, value_enum)]
     task: Option<TaskArg>,
+    /// Use only the first N episodes of each file (comma-separated, one per file).
+    #[arg(long, value_delimiter = ',')]
+    episodes: Option<Vec<u32>>,
     /// Gradient steps.
     #[arg(long)]
     steps: Option<u64>,
@@ -186,7 +189,21 @@ pub fn load_demos(
 
 /// Clones demonstrations into a policy file and evaluates it.
 pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
-    let (sets, task) = load_demos(&a.demos, a.task)?;
+    let (mut sets, task) = load_demos(&a.demos, a.task)?;
+    if let Some(n) = &a.episodes {
+        if n.len() != sets.len() {
+            bail!(
+                "--episodes needs one count per demo file ({} files, {} counts)",
+                sets.len(),
+                n.len()
+            );
+        }
+        sets = sets
+            .iter()
+            .zip(n)
+            .map(|(s, &k)| s.first_episodes(k))
+            .collect();
+    }
     let mut cfg = BcConfig {
         seed: a.seed,
         ..BcConfig::default()

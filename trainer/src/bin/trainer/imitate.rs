@@ -19,9 +19,18 @@ pub struct ImitateArgs {
     /// Task.
     #[arg(long, value_enum, default_value_t = TaskArg::Grasp)]
     task: TaskArg,
-    /// Demonstrator episodes of round 0.
+    /// Clean demonstrator episodes of round 0.
     #[arg(long)]
     demo_episodes: Option<u32>,
+    /// Demonstrator episodes of round 0 with noise on the executed actions (DART).
+    #[arg(long)]
+    dart_episodes: Option<u32>,
+    /// Noise (standard deviation) on the DART episodes' arm actions.
+    #[arg(long)]
+    arm_noise: Option<f32>,
+    /// Noise on the DART episodes' finger actions.
+    #[arg(long)]
+    finger_noise: Option<f32>,
     /// DAgger rounds after round 0.
     #[arg(long)]
     rounds: Option<u32>,
@@ -61,6 +70,15 @@ impl ImitateArgs {
         };
         if let Some(v) = self.demo_episodes {
             c.demo_episodes = v;
+        }
+        if let Some(v) = self.dart_episodes {
+            c.dart_episodes = v;
+        }
+        if let Some(v) = self.arm_noise {
+            c.arm_noise = v;
+        }
+        if let Some(v) = self.finger_noise {
+            c.finger_noise = v;
         }
         if let Some(v) = self.rounds {
             c.rounds = v;
