@@ -3,12 +3,13 @@
 # starts (seeds from 3,000,000: apart from training, selection and final evaluations), through the
 # exported policy files and the runtime, with 95% Wilson intervals. Paper: 99.2%, 98.2%, 95.5%.
 # Usage: bash experiments/table2.sh [GRASP.dxpl STACK_IN_HAND.dxpl STACK.dxpl] [EPISODES]
-# Defaults: seed 0 of the runs of experiments/figures/sparse-demo-tasks.toml, 1000 episodes.
+# Defaults: the shipped policies (policies/README.md: the imitation learner), 1000 episodes. The
+# DDPG runs of the earlier sessions: runs/{grasp,stack-in-hand,stack}-sparse-demo/seed-0/policy.dxpl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-grasp=${1:-runs/grasp-sparse-demo/seed-0/policy.dxpl}
-inhand=${2:-runs/stack-in-hand-sparse-demo/seed-0/policy.dxpl}
-stack=${3:-runs/stack-sparse-demo/seed-0/policy.dxpl}
+grasp=${1:-policies/grasp.dxpl}
+inhand=${2:-policies/stack-in-hand.dxpl}
+stack=${3:-policies/stack.dxpl}
 episodes=${4:-1000}
 bin=./target/release/trainer
 [ -x "$bin" ] || cargo build --release -p dex-trainer --bin trainer

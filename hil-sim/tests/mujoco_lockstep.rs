@@ -53,60 +53,19 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
     assert_eq!(report.steps_without_action, 0);
 }
 
-#[test]
-fn trained_int8_policy_over_the_bus_scores_like_trainer_eval() {
-    // The Reach policy trained for int8, quantised as `policy quantise` / `trainer export --int8`
-    // do, runs behind the CAN interface with the MuJoCo plant: every episode's return and success
-    // equal what `trainer eval` measures for the same start seeds (CAN quantisation on).
+/// Runs `file` over the bus with the MuJoCo plant on `episodes` starts from `trainer eval`'s seed
+/// 1,000,000 and checks every episode's return and success against `trainer eval`'s (CAN
+/// quantisation on); returns the successes.
+fn over_the_bus_like_trainer_eval(file: &[u8], task: Task, episodes: u64) -> usize {
     use dex_trainer::env::{EnvConfig, Scene};
     use dex_trainer::evaluate::{EvalSettings, episode_outcomes, episode_seed};
-    let trained = aligned_copy(include_bytes!(
-        "../../trainer/tests/fixtures/reach_int8_seed0.dxpl"
-    ));
-    let view = PolicyView::decode(trained.as_bytes()).unwrap();
-    let int8 = dex_policy::int8::quantise_policy(&view, |_| true, None).unwrap();
-    let episodes = 4;
     let seeds: Vec<(u64, u32)> = (0..episodes)
         .map(|i| (episode_seed(1_000_000, i), u32::MAX))
         .collect();
-    let mut plant = MujocoPlant::new(Task::Reach).unwrap();
-    let (_, reports) = common::lockstep_over_the_bus(&int8, &mut plant, &seeds);
-    let settings = EvalSettings {
-        env: EnvConfig::new(Task::Reach),
-        episodes: episodes as u32,
-        seed: 1_000_000,
-        threads: 1,
-        can_quantisation: true,
-    };
-    let expected = episode_outcomes(&int8, &Scene::load().unwrap(), &settings, &|| {}).unwrap();
-    assert_eq!(reports.len(), expected.len());
-    for (r, (ret, success)) in reports.iter().zip(&expected) {
-        assert_eq!(r.episode_return.to_bits(), ret.to_bits());
-        assert_eq!(r.success, *success);
-        assert_eq!(r.steps_without_action, 0);
-    }
-    assert!(
-        reports.iter().any(|r| r.success),
-        "a trained policy reaches"
-    );
-}
-
-#[test]
-fn shipped_grasp_policy_over_the_bus_scores_like_trainer_eval() {
-    // The shipped Grasp policy (policies/grasp.dxpl, cloned from the Markov demonstrator) behind
-    // the CAN interface with the MuJoCo plant: every episode's return and success equal what
-    // `trainer eval` measures for the same start seeds, and it grasps.
-    use dex_trainer::env::{EnvConfig, Scene};
-    use dex_trainer::evaluate::{EvalSettings, episode_outcomes, episode_seed};
-    let file = include_bytes!("../../policies/grasp.dxpl");
-    let episodes = 4;
-    let seeds: Vec<(u64, u32)> = (0..episodes)
-        .map(|i| (episode_seed(1_000_000, i), u32::MAX))
-        .collect();
-    let mut plant = MujocoPlant::new(Task::Grasp).unwrap();
+    let mut plant = MujocoPlant::new(task).unwrap();
     let (_, reports) = common::lockstep_over_the_bus(file, &mut plant, &seeds);
     let settings = EvalSettings {
-        env: EnvConfig::new(Task::Grasp),
+        env: EnvConfig::new(task),
         episodes: episodes as u32,
         seed: 1_000_000,
         threads: 1,
@@ -119,8 +78,32 @@ fn shipped_grasp_policy_over_the_bus_scores_like_trainer_eval() {
         assert_eq!(r.success, *success);
         assert_eq!(r.steps_without_action, 0);
     }
+    reports.iter().filter(|r| r.success).count()
+}
+
+#[test]
+fn trained_int8_policy_over_the_bus_scores_like_trainer_eval() {
+    // The Reach policy trained for int8, quantised as `policy quantise` / `trainer export --int8`
+    // do, runs behind the CAN interface with the MuJoCo plant: every episode's return and success
+    // equal what `trainer eval` measures for the same start seeds (CAN quantisation on).
+    let trained = aligned_copy(include_bytes!(
+        "../../trainer/tests/fixtures/reach_int8_seed0.dxpl"
+    ));
+    let view = PolicyView::decode(trained.as_bytes()).unwrap();
+    let int8 = dex_policy::int8::quantise_policy(&view, |_| true, None).unwrap();
     assert!(
-        reports.iter().filter(|r| r.success).count() >= 3,
+        over_the_bus_like_trainer_eval(&int8, Task::Reach, 4) > 0,
+        "a trained policy reaches"
+    );
+}
+
+#[test]
+fn shipped_grasp_policy_over_the_bus_scores_like_trainer_eval() {
+    // The shipped Grasp policy (policies/grasp.dxpl, cloned from the Markov demonstrator) behind
+    // the CAN interface with the MuJoCo plant, and it grasps.
+    let file = include_bytes!("../../policies/grasp.dxpl");
+    assert!(
+        over_the_bus_like_trainer_eval(file, Task::Grasp, 4) >= 3,
         "the shipped Grasp policy grasps"
     );
 }
