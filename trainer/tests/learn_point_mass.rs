@@ -258,3 +258,25 @@ fn quantisation_aware_training_keeps_learning_on_the_int8_grid() {
     cfg.obs_norm.enabled = true;
     assert!(Trainer::new(cfg, 6, 2).is_err());
 }
+
+#[test]
+fn fixed_evaluation_starts_repeat_fresh_ones_do_not() {
+    // No updates (learning never starts), so the actor is the same at every evaluation: with fixed
+    // starts every evaluation gives the same return; with fresh starts (the paper's protocol) the
+    // returns differ between evaluations.
+    let returns = |fixed: bool| -> Vec<u64> {
+        let mut cfg = small_config(4);
+        cfg.learning_starts = usize::MAX;
+        cfg.eval.fixed_starts = fixed;
+        cfg.eval.episodes = 5;
+        let mut t = Trainer::new(cfg, 6, 2).expect("trainer");
+        let stop = AtomicBool::new(false);
+        let s = t.run(env, 3_000, &stop, &mut quiet).expect("run");
+        assert!(s.records.len() >= 3);
+        s.records.iter().map(|r| r.mean_return.to_bits()).collect()
+    };
+    let fixed = returns(true);
+    assert!(fixed.iter().all(|&r| r == fixed[0]), "{fixed:?}");
+    let fresh = returns(false);
+    assert!(fresh.iter().any(|&r| r != fresh[0]), "{fresh:?}");
+}
