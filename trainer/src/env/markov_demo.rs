@@ -106,15 +106,16 @@ impl MarkovDemonstrator {
         let hand_yaw = yaw_of(&pinch_mat);
         let (b1, b2) = (body(ids.brick1_body), body(ids.brick2_body));
         let (m1, m2) = (mat(ids.brick1_body), mat(ids.brick2_body));
-        let fingers: Vec<f64> = ids.joint_qpos[ARM_JOINTS..]
+        let finger_joints = &ids.joint_qpos[ARM_JOINTS..];
+        let f_mean = finger_joints
             .iter()
             .map(|&a| data.qpos().get(a).copied().unwrap_or(0.0))
-            .collect();
+            .sum::<f64>()
+            / finger_joints.len().max(1) as f64;
         let finger_speed = ids.joint_dof[ARM_JOINTS..]
             .iter()
             .map(|&a| data.qvel().get(a).copied().unwrap_or(0.0).abs())
             .fold(0.0, f64::max);
-        let f_mean = fingers.iter().sum::<f64>() / fingers.len().max(1) as f64;
         let preshape = ((PRESHAPE - f_mean) * 4.0).clamp(-1.0, 1.0);
         let gentle_open = preshape.max(-0.4);
         let closed = f_mean > CLOSED;

@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 
 use dex_trainer::demos::{DEMO_SEED, DemoSet, RecordMode, RecordSettings, record_with};
-use dex_trainer::env::{Demonstrator, MarkovDemonstrator, Scene};
+use dex_trainer::env::{Demonstrator, MarkovDemonstrator};
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::learn::bc::BcConfig;
 use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
@@ -101,10 +101,6 @@ pub struct CloneArgs {
     out: PathBuf,
 }
 
-fn load_scene() -> anyhow::Result<Scene> {
-    Scene::load().context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")
-}
-
 /// Records demonstrations into a demo file.
 pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
     if a.out.exists() && !a.force {
@@ -138,7 +134,7 @@ pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
         },
         Some(p) => DemoSource::Policy(Box::new(load_policy(p)?)),
     };
-    let scene = load_scene()?;
+    let scene = crate::train::load_scene()?;
     let pb = crate::train::bar(
         u64::from(a.episodes),
         false,
@@ -239,7 +235,7 @@ pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
         policy.final_loss
     );
     if a.eval_episodes > 0 {
-        let scene = load_scene()?;
+        let scene = crate::train::load_scene()?;
         let settings = EvalSettings {
             env: RewardArg::TaskDefault.env_config(task.task()),
             episodes: a.eval_episodes,

@@ -3,11 +3,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::Args;
 use indicatif::ProgressBar;
 
-use dex_trainer::env::Scene;
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::imitation::{ImitationConfig, ImitationEvent, run_imitation};
 
@@ -107,8 +105,7 @@ pub fn imitate(a: &ImitateArgs) -> anyhow::Result<()> {
         .iter()
         .map(|&s| a.settings(s))
         .collect::<anyhow::Result<_>>()?;
-    let scene = Scene::load()
-        .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
+    let scene = crate::train::load_scene()?;
     for cfg in &configs {
         let dir = a.out.join(format!("seed-{}", cfg.seed));
         let pb: Option<ProgressBar> = (!a.quiet).then(|| {

@@ -209,8 +209,7 @@ fn export_int8(
     const HELDOUT_EPISODES: u32 = 10;
     let f32_file =
         std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
-    let scene = dex_trainer::env::Scene::load()
-        .context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")?;
+    let scene = train::load_scene()?;
     let env = settings.reward.env_config(settings.task.task());
     let calibration = calibration_observations(&f32_file, &scene, env)?;
     // Equalised once; the draft (for the error and the evaluation) and the written file are

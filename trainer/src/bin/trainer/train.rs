@@ -106,7 +106,8 @@ fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
 }
 
-fn load_scene() -> anyhow::Result<Scene> {
+/// The MuJoCo scene, or an error that says how to install MuJoCo.
+pub fn load_scene() -> anyhow::Result<Scene> {
     Scene::load().context("cannot build the MuJoCo scene; run `bash scripts/setup-mujoco.sh` first")
 }
 
