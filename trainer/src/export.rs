@@ -369,8 +369,8 @@ pub fn export_scaled_actor(
         net,
         params,
         Some(ObsNormalisation {
-            mean: &scaling.mean,
-            inv_std: &scaling.inv_std,
+            mean: &scaling.norm.mean,
+            inv_std: &scaling.norm.inv_std,
         }),
         info,
         scaling.clip,

@@ -12,15 +12,15 @@ use super::LearnError;
 use super::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
 use super::kernel::Engine;
 use super::nets::{Activation, Mlp, MlpSpec};
+use super::norm::Normalizer;
 use super::rng::Rng;
 
-/// Fixed observation scaling: `clip((x - mean) * inv_std, -clip, clip)`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// Fixed observation scaling: the learner's [`Normalizer`] measured once on the demonstration data,
+/// then clipped: `clip((x - mean) * inv_std, -clip, clip)`.
+#[derive(Debug, Clone, PartialEq)]
 pub struct ObsScaling {
-    /// Subtracted per component.
-    pub mean: Vec<f32>,
-    /// Multiplied per component after the subtraction.
-    pub inv_std: Vec<f32>,
+    /// Mean and inverse standard deviation.
+    pub norm: Normalizer,
     /// Bound of the scaled values.
     pub clip: f32,
 }
@@ -48,20 +48,19 @@ impl ObsScaling {
             .map(|s| (1.0 / (s / n).sqrt().max(f64::from(min_std))) as f32)
             .collect();
         Self {
-            mean: mean.iter().map(|&m| m as f32).collect(),
-            inv_std,
+            norm: Normalizer {
+                mean: mean.iter().map(|&m| m as f32).collect(),
+                inv_std,
+            },
             clip,
         }
     }
 
     /// Scales rows in place.
     pub fn apply_rows(&self, data: &mut [f32]) {
-        let dim = self.mean.len();
-        for row in data.chunks_exact_mut(dim) {
-            for ((v, m), s) in row.iter_mut().zip(&self.mean).zip(&self.inv_std) {
-                *v = ((*v - m) * s).clamp(-self.clip, self.clip);
-            }
-        }
+        self.norm.apply_rows(data);
+        data.iter_mut()
+            .for_each(|v| *v = v.clamp(-self.clip, self.clip));
     }
 }
 
@@ -241,9 +240,9 @@ mod tests {
     fn scaling_centres_scales_and_clips() {
         let rows = [0.0f32, 5.0, 2.0, 5.0, 4.0, 5.0];
         let s = ObsScaling::from_rows(&rows, 2, 0.01, 3.0);
-        assert!((s.mean[0] - 2.0).abs() < 1e-6 && (s.mean[1] - 5.0).abs() < 1e-6);
+        assert!((s.norm.mean[0] - 2.0).abs() < 1e-6 && (s.norm.mean[1] - 5.0).abs() < 1e-6);
         assert!(
-            (s.inv_std[1] - 100.0).abs() < 1e-3,
+            (s.norm.inv_std[1] - 100.0).abs() < 1e-3,
             "floor 0.01 on a constant input"
         );
         let mut v = [4.0f32, 6.0];
