@@ -12,7 +12,7 @@
 //! Then total updates/s of ADPG-R with W = 1 and W = 2 workers (gemm, batch 64), same environment.
 
 use dex_trainer::learn::adam::{AdamLocal, AdamShared, adam_step};
-use dex_trainer::learn::ddpg::{UpdateBuffers, actor_gradient, critic_gradient};
+use dex_trainer::learn::ddpg::{ActorLoss, UpdateBuffers, actor_gradient, critic_gradient};
 use dex_trainer::learn::{
     AdamConfig, DdpgConfig, Engine, Env, EvalConfig, Networks, ReplayConfig, Rng, RunConfig, Step,
     TargetUpdate, Trainer,
@@ -95,7 +95,7 @@ fn kernel_rate(engine: Engine, batch: usize, seconds: f64) -> f64 {
         let loss = critic_gradient(&nets, 0.99, &critic, &t_actor, &t_critic, &mut bufs);
         black_box(loss.ok());
         adam_step(&adam, &mut critic, &bufs.critic_grads, &mut cm, &mut cv);
-        black_box(actor_gradient(&nets, &actor, &critic, &mut bufs).ok());
+        black_box(actor_gradient(&nets, &actor, &critic, &ActorLoss::default(), &mut bufs).ok());
         adam_step(&adam, &mut actor, &bufs.actor_grads, &mut am, &mut av);
         n += 1;
         cfg.target.apply(n, &actor, &mut t_actor);

@@ -16,7 +16,7 @@ pub enum CloneError {
     /// No demonstration rows were given.
     #[error("no demonstration rows to clone")]
     NoRows,
-    /// The demo sets are of different tasks than the one asked for.
+    /// A demo set is of a task the policy's task does not learn from.
     #[error("demonstrations of task {found} given for a {wanted} policy")]
     TaskMismatch {
         /// Task of the policy.
@@ -32,13 +32,19 @@ pub enum CloneError {
     Export(#[from] ExportError),
 }
 
-/// The observation and label rows of `sets` (all of `task`), flattened.
+/// The observation and label rows of `sets` (each of `task` or a task it learns from,
+/// [`Task::learns_from`]), flattened.
 pub fn clone_rows(sets: &[DemoSet], task: Task) -> Result<(Vec<f32>, Vec<f32>), CloneError> {
     let wanted = crate::demos::task_name(task);
     let mut obs = Vec::new();
     let mut labels = Vec::new();
     for s in sets {
-        if s.header.task != wanted {
+        let fits = s
+            .header
+            .task
+            .parse::<Task>()
+            .is_ok_and(|t| task.learns_from(t));
+        if !fits {
             return Err(CloneError::TaskMismatch {
                 wanted,
                 found: s.header.task.clone(),

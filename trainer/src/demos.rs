@@ -85,6 +85,16 @@ pub struct RecordSettings {
     /// Who drives the episodes (the demonstrator always labels).
     #[serde(default)]
     pub mode: RecordMode,
+    /// Reward written into the rows (None: the task's own, [`Task::default_reward`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reward: Option<crate::env::Reward>,
+}
+
+impl RecordSettings {
+    /// The reward the rows carry.
+    pub fn row_reward(&self) -> crate::env::Reward {
+        self.reward.unwrap_or(self.task.default_reward())
+    }
 }
 
 /// Who acts in a recorded episode; the demonstrator labels every recorded state either way.
@@ -118,6 +128,7 @@ impl RecordSettings {
             finger_noise: 0.0,
             successes_only: true,
             mode: RecordMode::Demonstrator,
+            reward: None,
         }
     }
 
@@ -252,7 +263,7 @@ pub fn record_with(
         ));
     }
     let mut env_steps = 0u64;
-    let config = EnvConfig::new(settings.task);
+    let config = EnvConfig::new(settings.task).with_reward(settings.row_reward());
     let mut env = JacoEnv::new(scene, config);
     let mut demo = source.clone();
     let mut rows = Vec::new();
@@ -517,4 +528,52 @@ impl DemoSet {
         }
         Ok(())
     }
+}
+
+/// The transitions of `sets` as the learner's demonstration buffer for a run of `task` under
+/// `reward`. Each set must be of `task` or one it learns from ([`Task::learns_from`]) and its rows
+/// must carry `reward` ([`RecordSettings::row_reward`]: record with the reward the run trains with).
+/// The critic learns from the executed actions; the cloning term targets the labels.
+pub fn demo_buffer(
+    sets: &[(DemoSet, std::path::PathBuf)],
+    task: Task,
+    reward: crate::env::Reward,
+) -> Result<crate::learn::DemoBuffer, DemoError> {
+    for (set, path) in sets {
+        let recorded: Option<Task> = set.header.task.parse().ok();
+        if !recorded.is_some_and(|t| task.learns_from(t)) {
+            return Err(DemoError::Mismatch {
+                path: path.clone(),
+                why: format!(
+                    "recorded for task {}, the run is for {}",
+                    set.header.task,
+                    task_name(task)
+                ),
+            });
+        }
+        let carried = set.header.settings.row_reward();
+        if carried != reward {
+            return Err(DemoError::Mismatch {
+                path: path.clone(),
+                why: format!(
+                    "its rows carry the {carried:?} reward, the run trains with {reward:?} \
+                     (record with `trainer demos --reward`)"
+                ),
+            });
+        }
+    }
+    let rows: Vec<crate::learn::DemoTransition<'_>> = sets
+        .iter()
+        .flat_map(|(s, _)| &s.rows)
+        .map(|r| crate::learn::DemoTransition {
+            obs: &r.obs,
+            executed: &r.executed,
+            label: &r.label,
+            reward: r.reward,
+            next_obs: &r.next_obs,
+            terminal: false,
+        })
+        .collect();
+    crate::learn::DemoBuffer::from_rows(OBS_DIM, ACT_DIM, &rows)
+        .map_err(|e| DemoError::Settings(e.to_string()))
 }

@@ -43,6 +43,9 @@ pub struct ImitationConfig {
     pub rounds: u32,
     /// Policy episodes labelled per DAgger round.
     pub episodes_per_round: u32,
+    /// Stack only: DART episodes started with brick 1 in the hand (StackInHand's starts), so the
+    /// carrying and placing part of the task gets data of its own (0: none).
+    pub in_hand_episodes: u32,
     /// Noise (standard deviation) on the executed arm actions of the DART episodes, action units.
     pub arm_noise: f32,
     /// Noise on the executed finger actions of the DART episodes.
@@ -67,6 +70,7 @@ impl Default for ImitationConfig {
             task: Task::Grasp,
             demo_episodes: 200,
             dart_episodes: 400,
+            in_hand_episodes: 0,
             rounds: 0,
             episodes_per_round: 50,
             arm_noise: 0.1,
@@ -88,6 +92,12 @@ impl ImitationConfig {
         if self.demo_episodes == 0 {
             return Err(ImitationError::Settings(
                 "demo_episodes must be at least 1".into(),
+            ));
+        }
+        if self.in_hand_episodes > 0 && self.task != Task::Stack {
+            return Err(ImitationError::Settings(
+                "in_hand_episodes is for the Stack task (the others start in the hand or never hold)"
+                    .into(),
             ));
         }
         if self.rounds > 0 && self.episodes_per_round == 0 {
@@ -117,6 +127,7 @@ impl ImitationConfig {
             finger_noise: 0.0,
             successes_only: false,
             mode: RecordMode::Dagger,
+            reward: None,
         };
         if round > 0 {
             return vec![(format!("demos-{round}.dxdm"), base)];
@@ -134,9 +145,18 @@ impl ImitationConfig {
             finger_noise: self.finger_noise,
             ..clean
         };
+        let in_hand = RecordSettings {
+            task: Task::StackInHand,
+            episodes: self.in_hand_episodes,
+            seed: seed + 2,
+            ..dart
+        };
         let mut v = vec![("demos-0.dxdm".to_owned(), clean)];
         if self.dart_episodes > 0 {
             v.push(("demos-0-dart.dxdm".to_owned(), dart));
+        }
+        if self.in_hand_episodes > 0 {
+            v.push(("demos-0-in-hand.dxdm".to_owned(), in_hand));
         }
         v
     }
@@ -231,12 +251,16 @@ pub fn run_imitation(
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let settings_path = dir.join("settings.json");
     let settings = serde_json::to_string_pretty(cfg).unwrap_or_default();
+    // Compared as settings, not text: a folder written before a setting existed (it takes its
+    // default) still resumes.
     match std::fs::read_to_string(&settings_path) {
-        Ok(old) if old != settings => return Err(ImitationError::SettingsChanged(dir.to_owned())),
+        Ok(old) if serde_json::from_str::<ImitationConfig>(&old).ok().as_ref() != Some(cfg) => {
+            return Err(ImitationError::SettingsChanged(dir.to_owned()));
+        }
         Ok(_) => {}
         Err(_) => write_atomic(&settings_path, settings.as_bytes())?,
     }
-    let expert = DemoSource::Markov(MarkovDemonstrator::new(cfg.task));
+    let expert = |task| DemoSource::Markov(MarkovDemonstrator::new(task));
     let bc = BcConfig {
         seed: cfg.seed,
         ..cfg.bc.clone()
@@ -266,7 +290,7 @@ pub fn run_imitation(
             let demo_path = dir.join(name);
             let set = if demo_path.exists() {
                 let s = DemoSet::load(&demo_path)?;
-                s.check_task(cfg.task, &demo_path)?;
+                s.check_task(rec.task, &demo_path)?;
                 s
             } else {
                 on_event(ImitationEvent::Recording {
@@ -277,7 +301,7 @@ pub fn run_imitation(
                     Some(bytes) if round > 0 => Some(PolicyDemonstration::from_file_bytes(bytes)?),
                     _ => None,
                 };
-                let s = record_with(scene, lead.as_ref(), &expert, &rec, &|| {})?;
+                let s = record_with(scene, lead.as_ref(), &expert(rec.task), &rec, &|| {})?;
                 s.save(&demo_path)?;
                 s
             };

@@ -187,3 +187,133 @@ fn quantisation_aware_run_exports_int8_without_loss() {
     assert_eq!(view.header().version, 2);
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn demonstration_runs_record_their_demos_resume_and_refuse_bad_demo_settings() {
+    let out = std::env::temp_dir().join(format!("dex-cli-demos-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    std::fs::create_dir_all(&out).unwrap();
+    let run = out.join("run");
+    let run_s = run.to_str().unwrap();
+    let base = [
+        "train",
+        "--task",
+        "reach",
+        "--transitions",
+        "100",
+        "--hidden",
+        "16,16",
+        "--checkpoint-every",
+        "50",
+        "--final-eval-episodes",
+        "1",
+        "--select-best-episodes",
+        "0",
+        "--record-demos",
+        "2",
+        "--demo-fraction",
+        "0.25",
+        "--bc-weight",
+        "0.5",
+        "--td3",
+        "--n-step",
+        "3",
+        "--noise-correlation",
+        "0.8",
+        "--finger-noise-scale",
+        "0.5",
+        "--action-l2",
+        "0.001",
+        "--quiet",
+        "--out",
+        run_s,
+    ];
+    let o = trainer(&base);
+    assert!(o.status.success(), "{}", text(&o));
+    let seed = run.join("seed-0");
+    assert!(seed.join("demos.dxdm").exists(), "{}", text(&o));
+    assert!(
+        text(&o).contains("demonstration transitions"),
+        "{}",
+        text(&o)
+    );
+    let settings = std::fs::read_to_string(seed.join("settings.toml")).unwrap();
+    for key in ["twin_critics = true", "n_step = 3", "correlation = 0.8"] {
+        assert!(settings.contains(key), "{key} not in\n{settings}");
+    }
+    // Resuming with the same flags continues (the demonstrations are loaded again, not
+    // re-recorded); other demonstration settings are refused.
+    let mut longer = base.to_vec();
+    longer[4] = "200";
+    longer.push("--resume");
+    let o = trainer(&longer);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains("recording"), "{}", text(&o));
+    let mut other = longer.clone();
+    other[14] = "3";
+    let o = trainer(&other);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("demonstrations"), "{}", text(&o));
+
+    // A demo file of another task, or with another reward in its rows, is refused before training.
+    let grasp = out.join("grasp.dxdm");
+    let o = trainer(&[
+        "demos",
+        "--task",
+        "grasp",
+        "--episodes",
+        "1",
+        "--out",
+        grasp.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let sparse = out.join("reach-sparse.dxdm");
+    let o = trainer(&[
+        "demos",
+        "--task",
+        "reach",
+        "--episodes",
+        "1",
+        "--out",
+        sparse.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let cases: [(&[&str], &str); 7] = [
+        (
+            &["--demos", grasp.to_str().unwrap()],
+            "recorded for task grasp",
+        ),
+        (&["--demos", sparse.to_str().unwrap()], "reward"),
+        (&["--demos", "/nonexistent/x.dxdm"], "x.dxdm"),
+        (&["--demo-fraction", "1.5"], "demos.fraction"),
+        (&["--bc-weight", "1"], "demos.bc_weight"),
+        (&["--demo-fraction", "0.5"], "needs demonstrations"),
+        (&["--preset", "paper", "--td3"], "cannot be used with"),
+    ];
+    for (extra, want) in cases {
+        let dir = out.join("bad");
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut args = vec![
+            "train",
+            "--task",
+            "reach",
+            "--transitions",
+            "50",
+            "--quiet",
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        if extra[0] == "--demos" {
+            args.extend(["--demo-fraction", "0.5"]);
+        }
+        args.extend_from_slice(extra);
+        let o = trainer(&args);
+        assert!(!o.status.success(), "{extra:?} was accepted");
+        assert!(text(&o).contains(want), "{extra:?}: {}", text(&o));
+        assert!(
+            !dir.join("seed-0").join("checkpoint.bin").exists(),
+            "{extra:?} trained"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}

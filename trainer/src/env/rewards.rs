@@ -115,7 +115,8 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 
 /// The reward functions. The first four are the paper's; the last two are the sparse rewards of the
 /// Grasp and Reach tasks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Reward {
     /// Paper "Stack (sparse)": 1 if stack, else 0.
     SparseStack,

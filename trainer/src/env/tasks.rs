@@ -35,6 +35,19 @@ impl Task {
         }
     }
 
+    /// Whether demonstrations of `other` are valid training data for a policy of this task: its
+    /// own, and for Stack those of StackInHand (the same success and observation, started where
+    /// Stack's grasp ends: the paper's in-hand instructive starts, as data).
+    pub const fn learns_from(self, other: Task) -> bool {
+        matches!(
+            (self, other),
+            (Task::Stack, Task::Stack | Task::StackInHand)
+                | (Task::StackInHand, Task::StackInHand)
+                | (Task::Grasp, Task::Grasp)
+                | (Task::Reach, Task::Reach)
+        )
+    }
+
     /// The task's own sparse reward (used unless the configuration names another).
     pub const fn default_reward(self) -> Reward {
         match self {
@@ -103,6 +116,10 @@ mod tests {
         assert!(!Task::Grasp.is_success(none) && Task::Grasp.is_success(grasp));
         assert!(Task::Stack.is_success(stack) && !Task::Stack.is_success(grasp));
         assert!(Task::StackInHand.is_success(stack));
+        assert!(Task::Stack.learns_from(Task::StackInHand));
+        assert!(!Task::StackInHand.learns_from(Task::Stack));
+        assert!(!Task::Stack.learns_from(Task::Grasp));
+        assert!(Task::ALL.iter().all(|&t| t.learns_from(t)));
         assert!(Task::Reach.is_success(grasp));
         for t in Task::ALL {
             let name = format!("{t:?}");

@@ -7,7 +7,10 @@
 //! Format (little-endian): magic `DEXLRN02`; the [`RunConfig`] as JSON (u64 length + bytes); observation
 //! and action sizes; counters; shared parameters, targets, second moments and the update count; the
 //! observation statistics; per worker its generator, first moments, transition count and optional
-//! replay; the optional shared replay; finally an FNV-1a 64 hash of everything before it. Arrays are a
+//! replay; the optional shared replay; with twin critics, the second critic, its target, second
+//! moment and each worker's first moment; finally an FNV-1a 64 hash of everything before it.
+//! Demonstration transitions are not stored: the caller gives them again
+//! ([`Trainer::set_demonstrations`]). Arrays are a
 //! u64 count then the values. A replay stores only its filled rows.
 
 use super::LearnError;
@@ -220,6 +223,16 @@ impl Trainer {
             e.replay(w.replay.as_ref());
         }
         e.replay(self.shared_replay.as_ref());
+        if self.cfg.td3.twin_critics {
+            e.f32s(&s.critic2);
+            e.f32s(&s.target_critic2);
+            e.f32s(&s.critic2_adam.v);
+            e.u64(s.critic2_adam.t);
+            for w in &self.workers {
+                e.f32s(&w.critic2_m.m);
+                e.u64(w.critic2_m.t);
+            }
+        }
         let h = fnv1a(&e.buf);
         e.u64(h);
         e.buf
@@ -290,11 +303,26 @@ impl Trainer {
                 rng,
                 actor_m,
                 critic_m,
+                critic2_m: AdamLocal::new(0),
                 replay: w.replay.take(),
                 transitions,
             };
         }
         d.replay(&mut t.shared_replay)?;
+        if t.cfg.td3.twin_critics {
+            t.shared.critic2 = d.f32s_len(nc)?;
+            t.shared.target_critic2 = d.f32s_len(nc)?;
+            t.shared.critic2_adam = AdamShared {
+                v: d.f32s_len(nc)?,
+                t: d.u64()?,
+            };
+            for w in &mut t.workers {
+                w.critic2_m = AdamLocal {
+                    m: d.f32s_len(nc)?,
+                    t: d.u64()?,
+                };
+            }
+        }
         if !d.b.is_empty() {
             return Err(LearnError::BadCheckpoint("trailing bytes"));
         }

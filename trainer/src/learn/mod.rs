@@ -8,6 +8,10 @@
 //! - [`norm`]: optional observation normalisation, foldable into the actor for export.
 //! - [`quantise`]: quantisation-aware training of the actor (int8-grid weights, straight-through).
 //! - [`replay`]: uniform ring-buffer replay. [`ddpg`]: the DDPG gradients and target networks.
+//! - Beyond the paper, each off by default: [`demo_data`] (a demonstration buffer, a batch fraction
+//!   from it and a Q-filtered cloning term), [`td3`] (twin critics, target smoothing, delayed actor
+//!   updates), [`n_step`] (n-step returns, correct at time limits), [`noise`] (temporally
+//!   correlated exploration with a per-joint scale) and the action penalty in [`ddpg::ActorLoss`].
 //! - [`env`](mod@env): the [`Env`] trait the learner drives, and a toy [`PointMass`] task for tests.
 //! - [`trainer`]: [`Trainer`] runs W worker threads (W = 1 is DPG-R) with R updates per environment step,
 //!   evaluates on the paper's schedule and streams [`EvalRecord`]s; [`checkpoint`] saves and restores it.
@@ -19,22 +23,28 @@ pub mod adam;
 pub mod bc;
 pub mod checkpoint;
 pub mod ddpg;
+pub mod demo_data;
 pub mod env;
 pub mod kernel;
+pub mod n_step;
 pub mod nets;
+pub mod noise;
 pub mod norm;
 pub mod quantise;
 pub mod replay;
 pub mod rng;
+pub mod td3;
 pub mod trainer;
 
 pub use adam::AdamConfig;
-pub use ddpg::{DdpgConfig, Networks, TargetUpdate};
+pub use ddpg::{ActorLoss, DdpgConfig, Networks, TargetUpdate};
+pub use demo_data::{DemoBuffer, DemoDataConfig, DemoTransition};
 pub use env::{Env, PointMass, PointMassConfig, Step};
 pub use kernel::Engine;
 pub use norm::{Normalizer, ObsNormConfig};
 pub use quantise::QuantiseConfig;
 pub use rng::Rng;
+pub use td3::Td3Config;
 pub use trainer::{
     EvalConfig, EvalRecord, Event, NoiseConfig, Progress, ReplayConfig, RunConfig, RunSummary,
     Trainer,

@@ -372,6 +372,15 @@ impl Mlp {
         Ok(&scratch.post[last][..batch * self.layout[last].fan_out])
     }
 
+    /// The outputs of the last [`Mlp::forward`] into `scratch` (its first `batch` rows).
+    pub fn output<'s>(&self, scratch: &'s MlpScratch, batch: usize) -> &'s [f32] {
+        let Some((last, l)) = self.layout.iter().enumerate().next_back() else {
+            return &[];
+        };
+        let rows = batch.min(scratch.batch);
+        &scratch.post[last][..rows * l.fan_out]
+    }
+
     fn check_batch(
         &self,
         len: usize,

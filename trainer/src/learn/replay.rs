@@ -18,8 +18,13 @@ pub struct Batch {
     pub reward: Vec<f32>,
     /// Next observations, `len x obs_dim`.
     pub next_obs: Vec<f32>,
-    /// Discount multiplier of the bootstrap term: 0 after a terminal step, else 1.
+    /// Discount multiplier of the bootstrap term: 0 after a terminal step, else 1 (for n-step
+    /// rows `gamma^(n-1)`, see [`super::n_step`]).
     pub not_done: Vec<f32>,
+    /// The first `demo_rows` rows come from the demonstration buffer.
+    pub demo_rows: usize,
+    /// Cloning targets of the demonstration rows, `demo_rows x act_dim`.
+    pub bc_target: Vec<f32>,
 }
 
 impl Batch {
@@ -32,6 +37,8 @@ impl Batch {
             reward: vec![0.0; size],
             next_obs: vec![0.0; size * obs_dim],
             not_done: vec![0.0; size],
+            demo_rows: 0,
+            bc_target: vec![0.0; size * act_dim],
         }
     }
 
@@ -89,6 +96,11 @@ impl Replay {
         self.capacity
     }
 
+    /// Observation and action sizes.
+    pub fn dims(&self) -> (usize, usize) {
+        (self.obs_dim, self.act_dim)
+    }
+
     /// Stores one transition, overwriting the oldest when full. Slices longer than the dimensions are
     /// cut; shorter ones leave the rest of the slot zero-filled.
     pub fn push(
@@ -99,12 +111,25 @@ impl Replay {
         next_obs: &[f32],
         terminal: bool,
     ) {
+        self.push_discounted(obs, act, reward, next_obs, if terminal { 0.0 } else { 1.0 });
+    }
+
+    /// Stores one transition whose bootstrap multiplier is `not_done` (an n-step row's
+    /// `gamma^(n-1)`, 0 after a terminal step).
+    pub fn push_discounted(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        reward: f32,
+        next_obs: &[f32],
+        not_done: f32,
+    ) {
         let i = self.next;
         copy_row(&mut self.obs, i, self.obs_dim, obs);
         copy_row(&mut self.act, i, self.act_dim, act);
         copy_row(&mut self.next_obs, i, self.obs_dim, next_obs);
         self.reward[i] = reward;
-        self.not_done[i] = if terminal { 0.0 } else { 1.0 };
+        self.not_done[i] = not_done;
         self.next = (i + 1) % self.capacity;
         self.len = (self.len + 1).min(self.capacity);
     }
@@ -112,21 +137,34 @@ impl Replay {
     /// Fills `batch` with `n` transitions drawn uniformly with replacement (`n` is capped by the batch's
     /// capacity). Leaves the batch empty when the buffer is.
     pub fn sample(&self, rng: &mut Rng, n: usize, batch: &mut Batch) {
-        let n = if self.len == 0 {
-            0
+        batch.demo_rows = 0;
+        self.sample_after(rng, 0, n, batch);
+    }
+
+    /// Fills rows `from..from + n` of `batch` (capped by its capacity) with uniform draws and sets
+    /// `batch.len` to the end of them (rows before `from` are left as they are, e.g. demonstration
+    /// rows). Leaves `batch.len = from` when the buffer is empty.
+    pub fn sample_after(&self, rng: &mut Rng, from: usize, n: usize, batch: &mut Batch) {
+        let end = if self.len == 0 {
+            from
         } else {
-            n.min(batch.capacity())
+            (from + n).min(batch.capacity())
         };
-        for r in 0..n {
+        for r in from..end {
             let i = rng.below(self.len);
-            let (o, a) = (self.obs_dim, self.act_dim);
-            batch.obs[r * o..(r + 1) * o].copy_from_slice(&self.obs[i * o..(i + 1) * o]);
-            batch.next_obs[r * o..(r + 1) * o].copy_from_slice(&self.next_obs[i * o..(i + 1) * o]);
-            batch.act[r * a..(r + 1) * a].copy_from_slice(&self.act[i * a..(i + 1) * a]);
-            batch.reward[r] = self.reward[i];
-            batch.not_done[r] = self.not_done[i];
+            self.copy_row_into(i, batch, r);
         }
-        batch.len = n;
+        batch.len = end;
+    }
+
+    /// Copies stored transition `i` into row `r` of `batch`.
+    pub(crate) fn copy_row_into(&self, i: usize, batch: &mut Batch, r: usize) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        batch.obs[r * o..(r + 1) * o].copy_from_slice(&self.obs[i * o..(i + 1) * o]);
+        batch.next_obs[r * o..(r + 1) * o].copy_from_slice(&self.next_obs[i * o..(i + 1) * o]);
+        batch.act[r * a..(r + 1) * a].copy_from_slice(&self.act[i * a..(i + 1) * a]);
+        batch.reward[r] = self.reward[i];
+        batch.not_done[r] = self.not_done[i];
     }
 
     /// Raw contents for checkpoints: (next slot, stored count, obs, act, reward, next_obs, not_done).

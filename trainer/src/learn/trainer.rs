@@ -29,13 +29,21 @@
 
 use super::LearnError;
 use super::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
-use super::ddpg::{DdpgConfig, Networks, UpdateBuffers, actor_gradient, critic_gradient};
+use super::ddpg::{
+    ActorLoss, CriticSlot, DdpgConfig, Networks, TargetSmoothing, UpdateBuffers, actor_gradient,
+    critic_regression, critic_targets,
+};
+use super::demo_data::{DemoBuffer, DemoDataConfig};
 use super::env::Env;
+use super::n_step::NStepQueue;
 use super::nets::{Mlp, MlpScratch};
+use super::noise::ExplorationNoise;
+pub use super::noise::NoiseConfig;
 use super::norm::{Normalizer, ObsNormConfig, ObsStats};
 use super::quantise::{QuantiseConfig, QuantisedCopy, fake_quantise};
 use super::replay::Replay;
 use super::rng::Rng;
+use super::td3::Td3Config;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard, mpsc};
@@ -57,20 +65,6 @@ impl Default for ReplayConfig {
             capacity: 1_000_000,
             shared: true,
         }
-    }
-}
-
-/// Gaussian exploration noise added to the actor's output (then clipped to `[-1, 1]`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct NoiseConfig {
-    /// Standard deviation per action component.
-    pub std: f32,
-}
-
-impl Default for NoiseConfig {
-    fn default() -> Self {
-        NoiseConfig { std: 0.2 }
     }
 }
 
@@ -128,6 +122,13 @@ pub struct RunConfig {
     pub obs_norm: ObsNormConfig,
     /// Quantisation-aware training of the actor (off by default; see [`super::quantise`]).
     pub quantise: QuantiseConfig,
+    /// TD3's stabilisers (all off by default; see [`super::td3`]).
+    pub td3: Td3Config,
+    /// n-step returns (1: the paper's one-step targets; see [`super::n_step`]).
+    pub n_step: usize,
+    /// Demonstrations in the batches and the cloning term (off by default; see
+    /// [`super::demo_data`]); the buffer itself is given with [`Trainer::set_demonstrations`].
+    pub demos: DemoDataConfig,
     /// Seed of everything random in the run.
     pub seed: u64,
 }
@@ -153,6 +154,9 @@ impl Default for RunConfig {
             train_episode_steps: None,
             obs_norm: ObsNormConfig::default(),
             quantise: QuantiseConfig::default(),
+            td3: Td3Config::default(),
+            n_step: 1,
+            demos: DemoDataConfig::default(),
             seed: 0,
         }
     }
@@ -177,8 +181,17 @@ impl RunConfig {
         if !(self.ddpg.gamma >= 0.0 && self.ddpg.gamma <= 1.0) {
             return bad("ddpg.gamma", "must be in [0, 1]");
         }
-        if !(self.noise.std >= 0.0 && self.noise.std.is_finite()) {
-            return bad("noise.std", "must be finite and non-negative");
+        self.noise.validate(None)?;
+        self.td3.validate()?;
+        self.demos.validate()?;
+        if self.n_step == 0 || self.n_step > 100 {
+            return bad("n_step", "must be in 1..=100");
+        }
+        if self.demos.uses_demos() && self.quantise.aware_from.is_some() {
+            return bad(
+                "demos.fraction",
+                "demonstrations with quantisation-aware training are not supported",
+            );
         }
         for (field, a) in [
             ("actor_adam", &self.actor_adam),
@@ -285,6 +298,10 @@ pub(crate) struct SharedState {
     pub(crate) target_critic: Vec<f32>,
     pub(crate) actor_adam: AdamShared,
     pub(crate) critic_adam: AdamShared,
+    /// The twin critic (empty without `td3.twin_critics`).
+    pub(crate) critic2: Vec<f32>,
+    pub(crate) target_critic2: Vec<f32>,
+    pub(crate) critic2_adam: AdamShared,
     pub(crate) updates: u64,
     pub(crate) train_return_sum: f64,
     pub(crate) train_return_n: u64,
@@ -302,6 +319,8 @@ pub(crate) struct WorkerState {
     pub(crate) rng: Rng,
     pub(crate) actor_m: AdamLocal,
     pub(crate) critic_m: AdamLocal,
+    /// First moment of the twin critic (empty without it).
+    pub(crate) critic2_m: AdamLocal,
     pub(crate) replay: Option<Replay>,
     pub(crate) transitions: u64,
 }
@@ -329,21 +348,33 @@ pub struct Trainer {
     pub(crate) shared_replay: Option<Replay>,
     pub(crate) workers: Vec<WorkerState>,
     pub(crate) counters: Counters,
+    /// Demonstration transitions (not in checkpoints: given again on resume).
+    pub(crate) demos: Option<DemoBuffer>,
 }
 
 impl Trainer {
     /// A fresh run for an environment with the given dimensions.
     pub fn new(cfg: RunConfig, obs_dim: usize, act_dim: usize) -> Result<Self, LearnError> {
         cfg.validate()?;
+        cfg.noise.validate(Some(act_dim))?;
         let nets = Networks::new(&cfg.ddpg, obs_dim, act_dim)?;
         let mut rng = Rng::derive(cfg.seed, STREAM_INIT);
         let actor = nets.actor.init_params(&mut rng, cfg.ddpg.final_init);
         let critic = nets.critic.init_params(&mut rng, cfg.ddpg.final_init);
+        // Drawn after the first two so a run without the twin starts exactly as before.
+        let critic2 = if cfg.td3.twin_critics {
+            nets.critic.init_params(&mut rng, cfg.ddpg.final_init)
+        } else {
+            Vec::new()
+        };
         let shared = SharedState {
             target_actor: actor.clone(),
             target_critic: critic.clone(),
             actor_adam: AdamShared::new(actor.len()),
             critic_adam: AdamShared::new(critic.len()),
+            target_critic2: critic2.clone(),
+            critic2_adam: AdamShared::new(critic2.len()),
+            critic2,
             actor,
             critic,
             obs_stats: ObsStats::new(obs_dim),
@@ -359,6 +390,11 @@ impl Trainer {
                 rng: Rng::derive(cfg.seed, STREAM_WORKER + i as u64),
                 actor_m: AdamLocal::new(nets.actor.num_params()),
                 critic_m: AdamLocal::new(nets.critic.num_params()),
+                critic2_m: AdamLocal::new(if cfg.td3.twin_critics {
+                    nets.critic.num_params()
+                } else {
+                    0
+                }),
                 replay: (!cfg.replay.shared)
                     .then(|| Replay::new(cfg.replay.capacity / w, obs_dim, act_dim)),
                 transitions: 0,
@@ -371,7 +407,27 @@ impl Trainer {
             shared_replay,
             workers,
             counters: Counters::default(),
+            demos: None,
         })
+    }
+
+    /// Gives the run its demonstration transitions (needed when `demos.fraction > 0`; again after
+    /// loading a checkpoint, which does not hold them). Fails when the sizes differ.
+    pub fn set_demonstrations(&mut self, demos: DemoBuffer) -> Result<(), LearnError> {
+        let want = (self.nets.obs_dim, self.nets.act_dim);
+        if demos.dims() != want {
+            return Err(LearnError::EnvMismatch {
+                expected: want,
+                got: demos.dims(),
+            });
+        }
+        self.demos = Some(demos);
+        Ok(())
+    }
+
+    /// The demonstration transitions given to the run, if any.
+    pub fn demonstrations(&self) -> Option<&DemoBuffer> {
+        self.demos.as_ref()
     }
 
     /// The run's configuration.
@@ -475,6 +531,12 @@ impl Trainer {
         E: Env,
         F: Fn(usize) -> E + Sync,
     {
+        if self.cfg.demos.uses_demos() && self.demos.is_none() {
+            return Err(LearnError::Config {
+                field: "demos.fraction",
+                why: "the run draws demonstration rows but no demonstrations were given",
+            });
+        }
         let Trainer {
             cfg,
             nets,
@@ -482,6 +544,7 @@ impl Trainer {
             shared_replay,
             workers,
             counters,
+            demos,
         } = self;
         let per: Vec<u64> = workers.iter().map(|w| w.transitions).collect();
         if per.iter().sum::<u64>() >= until_transitions {
@@ -510,6 +573,16 @@ impl Trainer {
                 version: 0,
                 target_version: 0,
             }),
+            critic2: cfg.td3.twin_critics.then(|| {
+                Mutex::new(NetShared {
+                    params: s.critic2,
+                    target: s.target_critic2,
+                    adam: s.critic2_adam,
+                    version: 0,
+                    target_version: 0,
+                })
+            }),
+            demos: demos.as_ref(),
             returns: Mutex::new((s.train_return_sum, s.train_return_n)),
             obs_stats: Mutex::new(s.obs_stats),
             replay: shared_replay.take().map(Mutex::new),
@@ -571,6 +644,16 @@ impl Trainer {
         counters.wall_s = progress.wall_s;
         let a = ctx.actor.into_inner().map_err(poisoned)?;
         let c = ctx.critic.into_inner().map_err(poisoned)?;
+        let c2 = match ctx.critic2 {
+            Some(m) => m.into_inner().map_err(poisoned)?,
+            None => NetShared {
+                params: Vec::new(),
+                target: Vec::new(),
+                adam: AdamShared::new(0),
+                version: 0,
+                target_version: 0,
+            },
+        };
         let (train_return_sum, train_return_n) = ctx.returns.into_inner().map_err(poisoned)?;
         let obs_stats = ctx.obs_stats.into_inner().map_err(poisoned)?;
         *shared = SharedState {
@@ -580,6 +663,9 @@ impl Trainer {
             target_critic: c.target,
             actor_adam: a.adam,
             critic_adam: c.adam,
+            critic2: c2.params,
+            target_critic2: c2.target,
+            critic2_adam: c2.adam,
             updates: ctx.updates.load(Ordering::Relaxed),
             train_return_sum,
             train_return_n,
@@ -608,6 +694,9 @@ struct Ctx<'a> {
     nets: &'a Networks,
     actor: Mutex<NetShared>,
     critic: Mutex<NetShared>,
+    /// The twin critic, with `td3.twin_critics`.
+    critic2: Option<Mutex<NetShared>>,
+    demos: Option<&'a DemoBuffer>,
     returns: Mutex<(f64, u64)>,
     obs_stats: Mutex<ObsStats>,
     replay: Option<Mutex<Replay>>,
@@ -680,6 +769,10 @@ struct Local {
     target_critic: Vec<f32>,
     /// Versions of the local actor, critic, target actor, target critic.
     versions: [u64; 4],
+    /// The twin critic and its target (empty without it) and their versions.
+    critic2: Vec<f32>,
+    target_critic2: Vec<f32>,
+    versions2: [u64; 2],
     bufs: UpdateBuffers,
     act_scratch: MlpScratch,
     /// The worker's copy of the observation normaliser (refreshed every step when on).
@@ -709,12 +802,26 @@ fn worker_loop<E: Env>(
     let mut local = {
         let a = lock(&ctx.actor)?;
         let c = lock(&ctx.critic)?;
+        let (critic2, target_critic2, versions2) = match &ctx.critic2 {
+            Some(m) => {
+                let c2 = lock(m)?;
+                (
+                    c2.params.clone(),
+                    c2.target.clone(),
+                    [c2.version, c2.target_version],
+                )
+            }
+            None => (Vec::new(), Vec::new(), [0, 0]),
+        };
         Local {
             actor: a.params.clone(),
             critic: c.params.clone(),
             target_actor: a.target.clone(),
             target_critic: c.target.clone(),
             versions: [a.version, c.version, a.target_version, c.target_version],
+            critic2,
+            target_critic2,
+            versions2,
             bufs: UpdateBuffers::new(nets, cfg.ddpg.batch_size),
             act_scratch: nets.actor.scratch(1),
             norm: lock(&ctx.obs_stats)?.normalizer(cfg.obs_norm.min_std),
@@ -736,7 +843,10 @@ fn worker_loop<E: Env>(
         }
         Ok(())
     };
+    let mut noise = ExplorationNoise::new(&cfg.noise, ad);
+    let mut pending = NStepQueue::new(cfg.n_step, cfg.ddpg.gamma, od, ad);
     env.reset(&mut ws.rng, &mut obs);
+    noise.reset(&mut ws.rng);
     observe(&obs, &mut local.norm)?;
     let mut ep_steps = 0usize;
     let mut ep_return = 0.0f64;
@@ -758,27 +868,24 @@ fn worker_loop<E: Env>(
         let mean = nets
             .actor
             .forward(params, &obs_n, 1, &mut local.act_scratch)?;
-        for (a, &m) in action.iter_mut().zip(mean) {
-            *a = ws.rng.normal(m, cfg.noise.std).clamp(-1.0, 1.0);
-        }
+        noise.perturb(&mut ws.rng, mean, &mut action);
         let step = env.step(&action, &mut next_obs);
         observe(&next_obs, &mut local.norm)?;
         ep_steps += 1;
         ep_return += f64::from(step.reward);
         let cut = cfg.train_episode_steps.is_some_and(|n| ep_steps >= n);
         let done = step.done() || cut;
-        let stored = match (&ctx.replay, &mut ws.replay) {
-            (Some(m), _) => {
-                let mut r = lock(m)?;
-                r.push(&obs, &action, step.reward, &next_obs, step.terminal);
-                r.len()
-            }
-            (None, Some(r)) => {
-                r.push(&obs, &action, step.reward, &next_obs, step.terminal);
-                r.len()
-            }
+        let mut guard = None;
+        let replay = match (&ctx.replay, &mut ws.replay) {
+            (Some(m), _) => &mut **guard.insert(lock(m)?),
+            (None, Some(r)) => r,
             (None, None) => return Err(LearnError::Worker("no replay buffer")),
         };
+        pending.push(&obs, &action, step.reward, step.terminal, done, |t| {
+            replay.push_discounted(t.obs, t.act, t.reward, &next_obs, t.not_done);
+        });
+        let stored = replay.len();
+        drop(guard);
         ws.transitions += 1;
         ctx.per_worker[id].store(ws.transitions, Ordering::Relaxed);
         ctx.transitions.fetch_add(1, Ordering::Relaxed);
@@ -841,6 +948,7 @@ fn worker_loop<E: Env>(
                 return Ok(());
             }
             env.reset(&mut ws.rng, &mut obs);
+            noise.reset(&mut ws.rng);
             observe(&obs, &mut local.norm)?;
             ep_steps = 0;
             ep_return = 0.0;
@@ -864,14 +972,26 @@ impl NetShared {
     }
 }
 
-/// One DDPG update on shared parameters (steps 1-6 of the module docs).
+/// One DDPG update on shared parameters (steps 1-6 of the module docs), with the TD3 pieces and
+/// the demonstration rows where configured.
 fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), LearnError> {
     let cfg = ctx.cfg;
     let nets = ctx.nets;
     let n = cfg.ddpg.batch_size;
+    let k = match ctx.demos {
+        Some(d) if cfg.demos.uses_demos() => {
+            let k = cfg.demos.rows(n);
+            d.sample_into(&mut ws.rng, k, &mut local.bufs.batch);
+            k
+        }
+        _ => {
+            local.bufs.batch.demo_rows = 0;
+            0
+        }
+    };
     match (&ctx.replay, &ws.replay) {
-        (Some(m), _) => lock(m)?.sample(&mut ws.rng, n, &mut local.bufs.batch),
-        (None, Some(r)) => r.sample(&mut ws.rng, n, &mut local.bufs.batch),
+        (Some(m), _) => lock(m)?.sample_after(&mut ws.rng, k, n - k, &mut local.bufs.batch),
+        (None, Some(r)) => r.sample_after(&mut ws.rng, k, n - k, &mut local.bufs.batch),
         (None, None) => return Err(LearnError::Worker("no replay buffer")),
     }
     if cfg.obs_norm.enabled {
@@ -895,6 +1015,13 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         (&mut local.critic, seen_critic),
         (&mut local.target_critic, seen_target_critic),
     );
+    if let Some(m) = &ctx.critic2 {
+        let [seen, seen_target] = &mut local.versions2;
+        lock(m)?.refresh_into(
+            (&mut local.critic2, seen),
+            (&mut local.target_critic2, seen_target),
+        );
+    }
     // Quantisation-aware: the target actor and the actor are used with int8-grid weights; the
     // actor's gradient (taken at the quantised weights) updates the f32 weights (straight-through).
     let aware = ctx.quantisation_aware();
@@ -902,14 +1029,30 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         local
             .target_actor_q
             .select(aware, &nets.actor, &local.target_actor, local.versions[2])?;
-    critic_gradient(
+    let td3 = cfg.td3;
+    let twin = ctx.critic2.is_some();
+    let smoothing = (td3.target_noise > 0.0).then_some(TargetSmoothing {
+        rng: &mut ws.rng,
+        std: td3.target_noise,
+        clip: td3.target_noise_clip,
+    });
+    let second_target: &[f32] = if twin {
+        &local.target_critic2
+    } else {
+        &local.target_critic
+    };
+    critic_targets(
         nets,
         cfg.ddpg.gamma,
-        &local.critic,
         target_actor,
-        &local.target_critic,
+        [&local.target_critic, second_target],
+        smoothing,
         &mut local.bufs,
     )?;
+    critic_regression(nets, &local.critic, CriticSlot::First, &mut local.bufs)?;
+    if twin {
+        critic_regression(nets, &local.critic2, CriticSlot::Second, &mut local.bufs)?;
+    }
     {
         let mut guard = lock(&ctx.critic)?;
         let c = &mut *guard;
@@ -924,12 +1067,35 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         local.critic.copy_from_slice(&c.params);
         local.versions[1] = c.version;
     }
+    if let Some(m) = &ctx.critic2 {
+        let mut guard = lock(m)?;
+        let c = &mut *guard;
+        adam_step(
+            &cfg.critic_adam,
+            &mut c.params,
+            &local.bufs.critic2_grads,
+            &mut ws.critic2_m,
+            &mut c.adam,
+        );
+        c.version += 1;
+        local.critic2.copy_from_slice(&c.params);
+        local.versions2[0] = c.version;
+    }
+    let u = ctx.updates.fetch_add(1, Ordering::Relaxed) + 1;
+    if !td3.actor_due(u) {
+        return Ok(());
+    }
     let actor = local
         .actor_q
         .select(aware, &nets.actor, &local.actor, local.versions[0])?;
-    actor_gradient(nets, actor, &local.critic, &mut local.bufs)?;
+    let loss = ActorLoss {
+        action_l2: cfg.ddpg.action_l2,
+        bc_weight: cfg.demos.bc_weight,
+        q_filter: cfg.demos.q_filter,
+    };
+    actor_gradient(nets, actor, &local.critic, &loss, &mut local.bufs)?;
     let t = cfg.ddpg.target;
-    let u = {
+    {
         let mut guard = lock(&ctx.actor)?;
         let a = &mut *guard;
         adam_step(
@@ -940,16 +1106,14 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
             &mut a.adam,
         );
         a.version += 1;
-        let u = ctx.updates.fetch_add(1, Ordering::Relaxed) + 1;
         if t.apply(u, &a.params, &mut a.target) {
             a.target_version += 1;
         }
         local.actor.copy_from_slice(&a.params);
         local.versions[0] = a.version;
-        u
-    };
-    {
-        let mut guard = lock(&ctx.critic)?;
+    }
+    for m in std::iter::once(&ctx.critic).chain(ctx.critic2.as_ref()) {
+        let mut guard = lock(m)?;
         let c = &mut *guard;
         if t.apply(u, &c.params, &mut c.target) {
             c.target_version += 1;

@@ -175,8 +175,42 @@ pub struct TrainSettings {
     pub select_best_episodes: u32,
     /// Threads for that evaluation.
     pub eval_threads: usize,
+    /// Demonstration files (`trainer demos`) for `run.demos`: the run's demonstration buffer.
+    pub demo_files: Vec<PathBuf>,
+    /// Markov-demonstrator episodes recorded into each seed's folder (`demos.dxdm`, DART noise
+    /// `demo_noise` on the executed arm actions, half of it on the fingers) when `run.demos` draws
+    /// demonstration rows and no files are given.
+    pub record_demos: u32,
+    /// Noise on the recorded demonstrations' executed arm actions.
+    pub demo_noise: f32,
     /// The learner.
     pub run: RunConfig,
+}
+
+/// Named starting points for the learner's settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PresetArg {
+    /// The paper's plain DDPG: no demonstrations, no TD3 pieces, one-step returns, white noise.
+    Paper,
+}
+
+impl PresetArg {
+    /// Applies the preset to `s`'s learner settings.
+    pub fn apply(self, s: &mut TrainSettings) {
+        match self {
+            PresetArg::Paper => {
+                let plain = dex_trainer::learn::RunConfig::default();
+                s.run.td3 = plain.td3;
+                s.run.n_step = plain.n_step;
+                s.run.demos = plain.demos;
+                s.run.noise.correlation = 0.0;
+                s.run.noise.scale.clear();
+                s.run.ddpg.action_l2 = 0.0;
+                s.demo_files.clear();
+                s.record_demos = 0;
+            }
+        }
+    }
 }
 
 /// The defaults learn Reach: 92% (46/50) for seed 0 after 60k transitions in about 165 s on two
@@ -208,6 +242,9 @@ impl Default for TrainSettings {
             final_eval_episodes: 50,
             select_best_episodes: 30,
             eval_threads: 2,
+            demo_files: Vec::new(),
+            record_demos: 0,
+            demo_noise: 0.1,
             run,
         }
     }
@@ -297,6 +334,22 @@ impl TrainSettings {
             bail!("start.demonstrator_policy needs start.scheme = \"along-demonstrations\"");
         }
         self.run.validate().context("invalid learner settings")?;
+        let uses = self.run.demos.uses_demos();
+        if uses && self.demo_files.is_empty() && self.record_demos == 0 {
+            bail!(
+                "run.demos.fraction > 0 needs demonstrations: demo_files (--demos) or record_demos \
+                 (--record-demos)"
+            );
+        }
+        if !uses && (!self.demo_files.is_empty() || self.record_demos > 0) {
+            bail!(
+                "demonstrations given but run.demos.fraction is 0 (--demo-fraction): they would \
+                 not be used"
+            );
+        }
+        if !(self.demo_noise >= 0.0 && self.demo_noise <= 1.0) {
+            bail!("demo_noise must be in [0, 1]");
+        }
         Ok(())
     }
 

@@ -52,6 +52,10 @@ pub struct DemosArgs {
     /// Keep failed episodes too.
     #[arg(long)]
     keep_failures: bool,
+    /// Reward written into the rows (default: the task's own); a `trainer train` run with
+    /// demonstrations needs the reward it trains with.
+    #[arg(long, value_enum)]
+    reward: Option<RewardArg>,
     /// Output demo file (refused if it exists, unless --force).
     #[arg(long)]
     out: PathBuf,
@@ -121,6 +125,10 @@ pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
             (None, Some(_)) => RecordMode::Dagger,
             (None, None) => RecordMode::Demonstrator,
         },
+        reward: a
+            .reward
+            .map(|r| r.env_config(task).reward)
+            .filter(|&r| r != task.default_reward()),
     };
     let lead = match a.takeover.as_ref().or(a.dagger.as_ref()) {
         None => None,

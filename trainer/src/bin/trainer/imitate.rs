@@ -23,6 +23,9 @@ pub struct ImitateArgs {
     /// Demonstrator episodes of round 0 with noise on the executed actions (DART).
     #[arg(long)]
     dart_episodes: Option<u32>,
+    /// Stack only: DART episodes started with brick 1 in the hand (data for carrying and placing).
+    #[arg(long)]
+    in_hand_episodes: Option<u32>,
     /// Noise (standard deviation) on the DART episodes' arm actions.
     #[arg(long)]
     arm_noise: Option<f32>,
@@ -71,6 +74,9 @@ impl ImitateArgs {
         }
         if let Some(v) = self.dart_episodes {
             c.dart_episodes = v;
+        }
+        if let Some(v) = self.in_hand_episodes {
+            c.in_hand_episodes = v;
         }
         if let Some(v) = self.arm_noise {
             c.arm_noise = v;

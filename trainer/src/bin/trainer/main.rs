@@ -23,7 +23,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 
-use config::{RewardArg, StartArg, TaskArg};
+use config::{PresetArg, RewardArg, StartArg, TaskArg};
 
 #[derive(Parser)]
 #[command(
@@ -148,6 +148,44 @@ struct TrainArgs {
     /// No progress bar (logs only).
     #[arg(long)]
     quiet: bool,
+    /// Start from a named configuration (`paper`: plain DDPG, none of the components below);
+    /// conflicts with the component flags.
+    #[arg(long, value_enum, conflicts_with_all = [
+        "demos", "record_demos", "demo_fraction", "bc_weight", "no_q_filter", "td3", "n_step",
+        "noise_correlation", "finger_noise_scale", "action_l2",
+    ])]
+    preset: Option<PresetArg>,
+    /// Demonstration files (`trainer demos`), comma-separated: the run's demonstration buffer.
+    #[arg(long, value_delimiter = ',')]
+    demos: Option<Vec<PathBuf>>,
+    /// Record this many Markov-demonstrator episodes into each seed's folder as the
+    /// demonstration buffer (when no --demos are given).
+    #[arg(long)]
+    record_demos: Option<u32>,
+    /// Fraction of each mini-batch drawn from the demonstrations (0-1).
+    #[arg(long)]
+    demo_fraction: Option<f32>,
+    /// Weight of the behaviour-cloning term on the demonstration rows.
+    #[arg(long)]
+    bc_weight: Option<f32>,
+    /// Apply the cloning term on every demonstration row (no Q-filter).
+    #[arg(long)]
+    no_q_filter: bool,
+    /// TD3's pieces: twin critics, target smoothing (0.2, clip 0.5), actor every 2nd update.
+    #[arg(long)]
+    td3: bool,
+    /// n-step returns.
+    #[arg(long)]
+    n_step: Option<usize>,
+    /// Temporal correlation of the exploration noise (AR(1) coefficient, 0 = white).
+    #[arg(long)]
+    noise_correlation: Option<f32>,
+    /// Noise scale of the three finger joints relative to the arm joints'.
+    #[arg(long)]
+    finger_noise_scale: Option<f32>,
+    /// Weight of the action penalty in the actor's loss.
+    #[arg(long)]
+    action_l2: Option<f32>,
 }
 
 #[derive(Args, Debug)]

@@ -104,6 +104,89 @@ fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if let Some(e) = a.select_best_episodes {
         s.select_best_episodes = e;
     }
+    if let Some(p) = a.preset {
+        p.apply(s);
+    }
+    if let Some(d) = &a.demos {
+        s.demo_files.clone_from(d);
+    }
+    if let Some(n) = a.record_demos {
+        s.record_demos = n;
+    }
+    if let Some(f) = a.demo_fraction {
+        s.run.demos.fraction = f;
+    }
+    if let Some(w) = a.bc_weight {
+        s.run.demos.bc_weight = w;
+    }
+    if a.no_q_filter {
+        s.run.demos.q_filter = false;
+    }
+    if a.td3 {
+        s.run.td3 = dex_trainer::learn::Td3Config::td3();
+    }
+    if let Some(n) = a.n_step {
+        s.run.n_step = n;
+    }
+    if let Some(c) = a.noise_correlation {
+        s.run.noise.correlation = c;
+    }
+    if let Some(f) = a.finger_noise_scale {
+        let arm = dex_trainer::env::scene::ARM_JOINTS;
+        s.run.noise.scale = (0..ACT_DIM)
+            .map(|j| if j < arm { 1.0 } else { f })
+            .collect();
+    }
+    if let Some(w) = a.action_l2 {
+        s.run.ddpg.action_l2 = w;
+    }
+}
+
+/// The demonstration buffer of a seed's run: the settings' files, or `record_demos` episodes of
+/// the Markov demonstrator recorded into the seed's folder (`demos.dxdm`, reused when there).
+fn demonstrations(
+    s: &TrainSettings,
+    seed: u64,
+    dir: &Path,
+    scene: &Scene,
+) -> anyhow::Result<Option<dex_trainer::learn::DemoBuffer>> {
+    use dex_trainer::demos::{DEMO_SEED, DemoSet, RecordSettings, demo_buffer, record_with};
+    if !s.run.demos.uses_demos() {
+        return Ok(None);
+    }
+    let env_cfg = s.reward.env_config(s.task.task());
+    let mut sets = Vec::new();
+    for path in &s.demo_files {
+        sets.push((DemoSet::load(path)?, path.clone()));
+    }
+    if sets.is_empty() {
+        let path = dir.join("demos.dxdm");
+        let want = RecordSettings {
+            episodes: s.record_demos,
+            seed: DEMO_SEED + 500_000 + seed,
+            arm_noise: s.demo_noise,
+            finger_noise: 0.5 * s.demo_noise,
+            reward: Some(env_cfg.reward),
+            ..RecordSettings::new(s.task.task())
+        };
+        let set = match DemoSet::load(&path) {
+            Ok(set) if set.header.settings == want => set,
+            _ => {
+                println!(
+                    "seed {seed}: recording {} Markov-demonstrator episodes into {}",
+                    want.episodes,
+                    path.display()
+                );
+                let source =
+                    DemoSource::Markov(dex_trainer::env::MarkovDemonstrator::new(s.task.task()));
+                let set = record_with(scene, None, &source, &want, &|| {})?;
+                set.save(&path)?;
+                set
+            }
+        };
+        sets.push((set, path));
+    }
+    Ok(Some(demo_buffer(&sets, s.task.task(), env_cfg.reward)?))
 }
 
 /// The MuJoCo scene, or an error that says how to install MuJoCo.
@@ -210,13 +293,15 @@ fn train_seed(
         let saved: Option<TrainSettings> = std::fs::read_to_string(dir.join("settings.toml"))
             .ok()
             .and_then(|t| toml::from_str(&t).ok());
-        let same_env = saved
-            .as_ref()
-            .is_none_or(|o| (o.task, o.reward, &o.start) == (s.task, s.reward, &s.start));
+        let same_env = saved.as_ref().is_none_or(|o| {
+            (o.task, o.reward, &o.start) == (s.task, s.reward, &s.start)
+                && (&o.demo_files, o.record_demos, o.demo_noise.to_bits())
+                    == (&s.demo_files, s.record_demos, s.demo_noise.to_bits())
+        });
         if t.config() != &per_seed.run || !same_env {
             bail!(
-                "settings differ from the checkpoint's in {} (learner, task, reward or start \
-                 scheme); resume with the same settings",
+                "settings differ from the checkpoint's in {} (learner, task, reward, start \
+                 scheme or demonstrations); resume with the same settings",
                 dir.display()
             );
         }
@@ -232,6 +317,14 @@ fn train_seed(
         }
         Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?
     };
+    if let Some(d) = demonstrations(s, seed, &dir, scene)? {
+        println!(
+            "seed {seed}: {} demonstration transitions, {:.0}% of each batch",
+            d.len(),
+            100.0 * s.run.demos.fraction
+        );
+        trainer.set_demonstrations(d)?;
+    }
     write_atomic(&dir.join("settings.toml"), per_seed.to_toml()?.as_bytes())?;
     let mut log = OpenOptions::new()
         .create(true)

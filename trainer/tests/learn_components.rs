@@ -1,0 +1,264 @@
+//! The learner's components beyond the paper on the toy point-mass task: demonstrations as data
+//! (a separate buffer, a batch fraction, the Q-filtered cloning term), TD3's pieces, n-step returns,
+//! correlated per-joint noise and the action penalty: each learns, resumes bit-identically from a
+//! checkpoint, and refuses bad settings.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::type_complexity)]
+
+use dex_trainer::learn::{
+    DdpgConfig, DemoBuffer, DemoTransition, Env, EvalConfig, Event, PointMass, PointMassConfig,
+    ReplayConfig, Rng, RunConfig, TargetUpdate, Td3Config, Trainer,
+};
+use std::sync::atomic::AtomicBool;
+
+fn small_config(seed: u64) -> RunConfig {
+    RunConfig {
+        ddpg: DdpgConfig {
+            actor_hidden: vec![64, 64],
+            critic_hidden: vec![64, 64],
+            batch_size: 64,
+            gamma: 0.95,
+            target: TargetUpdate::Polyak { tau: 0.01 },
+            ..DdpgConfig::default()
+        },
+        learning_starts: 200,
+        replay: ReplayConfig {
+            capacity: 50_000,
+            shared: true,
+        },
+        eval: EvalConfig {
+            every_episodes: 10,
+            episodes: 20,
+            max_steps: 100,
+            ..EvalConfig::default()
+        },
+        seed,
+        ..RunConfig::default()
+    }
+}
+
+fn env(_: usize) -> PointMass {
+    PointMass::new(PointMassConfig::default())
+}
+
+fn quiet(_: Event<'_>) {}
+
+/// `episodes` episodes of the scripted point-mass controller (straight at the goal), executed with
+/// noise 0.3 on its actions, as demonstration transitions.
+fn demonstrations(episodes: usize) -> DemoBuffer {
+    let mut env = env(0);
+    let mut rng = Rng::seed_from_u64(99);
+    let mut rows: Vec<([f32; 6], [f32; 2], [f32; 2], f32, [f32; 6])> = Vec::new();
+    for _ in 0..episodes {
+        let mut obs = [0.0f32; 6];
+        env.reset(&mut rng, &mut obs);
+        loop {
+            let label = [
+                (obs[4] / 0.1).clamp(-1.0, 1.0),
+                (obs[5] / 0.1).clamp(-1.0, 1.0),
+            ];
+            let exec = label.map(|a| rng.normal(a, 0.3).clamp(-1.0, 1.0));
+            let mut next = [0.0f32; 6];
+            let step = env.step(&exec, &mut next);
+            rows.push((obs, label, exec, step.reward, next));
+            obs = next;
+            if step.done() {
+                break;
+            }
+        }
+    }
+    let rows: Vec<DemoTransition<'_>> = rows
+        .iter()
+        .map(|(o, l, e, r, n)| DemoTransition {
+            obs: o,
+            executed: e,
+            label: l,
+            reward: *r,
+            next_obs: n,
+            terminal: false,
+        })
+        .collect();
+    DemoBuffer::from_rows(6, 2, &rows).expect("demo buffer")
+}
+
+/// Transitions at the first evaluation with success >= 90% (None: not within the budget).
+fn transitions_to_90(t: &mut Trainer, budget: u64) -> Option<u64> {
+    let stop = AtomicBool::new(false);
+    let s = t.run(env, budget, &stop, &mut quiet).expect("run");
+    s.records
+        .iter()
+        .find(|r| r.success_rate >= 0.9)
+        .map(|r| r.transitions)
+}
+
+fn best_success(t: &mut Trainer, budget: u64) -> f64 {
+    let stop = AtomicBool::new(false);
+    let s = t.run(env, budget, &stop, &mut quiet).expect("run");
+    s.records.iter().map(|r| r.success_rate).fold(0.0, f64::max)
+}
+
+fn params_bits(t: &Trainer) -> Vec<u32> {
+    let (_, a) = t.actor();
+    let (_, c) = t.critic();
+    a.iter().chain(c).map(|v| v.to_bits()).collect()
+}
+
+#[test]
+fn demonstrations_in_the_batch_with_a_cloning_term_learn_faster() {
+    let budget = 3_000;
+    let mut results = Vec::new();
+    for seed in [1, 2] {
+        let mut base = small_config(seed);
+        base.updates_per_step = 4;
+        let mut plain = Trainer::new(base.clone(), 6, 2).expect("trainer");
+        let p = transitions_to_90(&mut plain, budget);
+        let mut cfg = base;
+        cfg.demos.fraction = 0.25;
+        cfg.demos.bc_weight = 1.0;
+        let mut fd = Trainer::new(cfg, 6, 2).expect("trainer");
+        fd.set_demonstrations(demonstrations(40)).expect("demos");
+        let d = transitions_to_90(&mut fd, budget);
+        results.push((seed, p, d));
+    }
+    eprintln!("(seed, plain, with demonstrations) transitions to 90%: {results:?}");
+    // Measured on dev-2c: (750, 500) and (1000, 750).
+    let total = |f: fn(&(u64, Option<u64>, Option<u64>)) -> Option<u64>| {
+        results.iter().map(|r| f(r).unwrap_or(budget)).sum::<u64>()
+    };
+    let (plain, demo) = (total(|r| r.1), total(|r| r.2));
+    assert!(
+        results.iter().all(|r| r.2.is_some()) && demo < plain,
+        "transitions to 90% over two seeds: plain {plain}, with demonstrations {demo}"
+    );
+}
+
+#[test]
+fn the_cloning_term_pulls_the_actor_onto_the_demonstrator() {
+    // With a heavy cloning weight and no filter, the actor becomes the scripted controller on the
+    // demonstration states whatever the critic says; without the term it does not.
+    let demos = demonstrations(40);
+    let gap = |bc_weight: f32| {
+        let mut cfg = small_config(3);
+        cfg.demos.fraction = 0.5;
+        cfg.demos.bc_weight = bc_weight;
+        cfg.demos.q_filter = false;
+        cfg.updates_per_step = 4;
+        let mut t = Trainer::new(cfg, 6, 2).expect("trainer");
+        t.set_demonstrations(demos.clone()).expect("demos");
+        let stop = AtomicBool::new(false);
+        t.run(env, 1_000, &stop, &mut quiet).expect("run");
+        let mut batch = dex_trainer::learn::replay::Batch::new(256, 6, 2);
+        demos.sample_into(&mut Rng::seed_from_u64(5), 256, &mut batch);
+        let mut err = 0.0f32;
+        for r in 0..256 {
+            let mut a = [0.0f32; 2];
+            t.act(&batch.obs[r * 6..(r + 1) * 6], &mut a).expect("act");
+            err +=
+                (a[0] - batch.bc_target[2 * r]).abs() + (a[1] - batch.bc_target[2 * r + 1]).abs();
+        }
+        err / 512.0
+    };
+    let (with, without) = (gap(10.0), gap(0.0));
+    eprintln!("mean |mu - label|: cloning {with}, none {without}");
+    assert!(with < 0.15, "cloning term: mean gap {with}");
+    assert!(with < 0.5 * without, "cloning {with} vs none {without}");
+}
+
+fn all_components(seed: u64) -> RunConfig {
+    let mut cfg = small_config(seed);
+    cfg.td3 = Td3Config::td3();
+    cfg.n_step = 3;
+    cfg.noise.correlation = 0.7;
+    cfg.noise.scale = vec![1.0, 0.5];
+    cfg.ddpg.action_l2 = 1e-3;
+    cfg.demos.fraction = 0.25;
+    cfg.demos.bc_weight = 0.5;
+    cfg
+}
+
+#[test]
+fn every_component_together_learns_and_resumes_bit_identically() {
+    let stop = AtomicBool::new(false);
+    let mut t = Trainer::new(all_components(4), 6, 2).expect("trainer");
+    t.set_demonstrations(demonstrations(40)).expect("demos");
+    let best = best_success(&mut t, 4_000);
+    assert!(best >= 0.9, "all components: best success {best}");
+    // Updates: the critics every step, the actor every second one.
+    assert!(t.progress().updates > 3_000);
+
+    let run = |chunks: &[u64]| {
+        let dir = std::env::temp_dir().join(format!(
+            "dex-components-{}-{}",
+            std::process::id(),
+            chunks.len()
+        ));
+        std::fs::create_dir_all(&dir).expect("tmp");
+        let path = dir.join("ckpt.bin");
+        let mut t = Trainer::new(all_components(8), 6, 2).expect("trainer");
+        t.set_demonstrations(demonstrations(10)).expect("demos");
+        for &c in chunks {
+            t.run(env, c, &stop, &mut quiet).expect("run");
+            t.save(&path).expect("save");
+            t = Trainer::load(&path).expect("load");
+            // The checkpoint does not hold the demonstrations: running without them is refused.
+            assert!(t.run(env, c + 100, &stop, &mut quiet).is_err());
+            t.set_demonstrations(demonstrations(10)).expect("demos");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+        params_bits(&t)
+    };
+    assert!(
+        run(&[1_200]) == run(&[500, 1_200]),
+        "a resumed run with every component differs from the uninterrupted one"
+    );
+}
+
+#[test]
+fn component_settings_out_of_range_are_refused_before_training() {
+    let mut cfg = small_config(1);
+    cfg.noise.scale = vec![1.0; 3];
+    assert!(
+        Trainer::new(cfg, 6, 2).is_err(),
+        "noise scale of 3 for 2 joints"
+    );
+    let mut cfg = small_config(1);
+    cfg.demos.fraction = 1.5;
+    assert!(Trainer::new(cfg, 6, 2).is_err());
+    let mut cfg = small_config(1);
+    cfg.demos.bc_weight = 1.0;
+    assert!(
+        Trainer::new(cfg, 6, 2).is_err(),
+        "cloning without demo rows"
+    );
+    let mut cfg = small_config(1);
+    cfg.n_step = 0;
+    assert!(Trainer::new(cfg, 6, 2).is_err());
+    let mut cfg = small_config(1);
+    cfg.td3.policy_delay = 0;
+    assert!(Trainer::new(cfg, 6, 2).is_err());
+    let mut cfg = small_config(1);
+    cfg.demos.fraction = 0.5;
+    let mut t = Trainer::new(cfg, 6, 2).expect("trainer");
+    let stop = AtomicBool::new(false);
+    assert!(
+        t.run(env, 100, &stop, &mut quiet).is_err(),
+        "no demos given"
+    );
+    let other = DemoBuffer::from_rows(
+        5,
+        2,
+        &[DemoTransition {
+            obs: &[0.0; 5],
+            executed: &[0.0; 2],
+            label: &[0.0; 2],
+            reward: 0.0,
+            next_obs: &[0.0; 5],
+            terminal: false,
+        }],
+    )
+    .expect("buffer");
+    assert!(
+        t.set_demonstrations(other).is_err(),
+        "other observation size"
+    );
+}
