@@ -110,3 +110,47 @@ fn bad_settings_are_refused() {
     };
     assert!(bad.validate().is_err());
 }
+
+#[test]
+fn stack_runs_take_in_hand_demonstrations_as_data() {
+    // Only Stack may add in-hand episodes; they are recorded from StackInHand's starts.
+    let grasp = ImitationConfig {
+        in_hand_episodes: 2,
+        ..tiny()
+    };
+    assert!(grasp.validate().is_err());
+    let stack = ImitationConfig {
+        task: Task::Stack,
+        demo_episodes: 2,
+        dart_episodes: 0,
+        in_hand_episodes: 2,
+        rounds: 0,
+        select_episodes: 0,
+        ..tiny()
+    };
+    stack.validate().expect("valid");
+    let sets = stack.recordings(0);
+    let tasks: Vec<(String, Task)> = sets.iter().map(|(n, r)| (n.clone(), r.task)).collect();
+    assert_eq!(
+        tasks,
+        vec![
+            ("demos-0.dxdm".to_owned(), Task::Stack),
+            ("demos-0-in-hand.dxdm".to_owned(), Task::StackInHand),
+        ]
+    );
+    let dir = std::env::temp_dir().join(format!("dex-imitate-inhand-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let scene = Scene::load().expect("scene");
+    let summary = run_imitation(&scene, &stack, &dir, &mut |_| {}).expect("run");
+    assert!(summary.policy.exists());
+    let in_hand = DemoSet::load(&dir.join("demos-0-in-hand.dxdm")).expect("in-hand file");
+    assert_eq!(in_hand.header.task, "stack-in-hand");
+    // A Stack policy learns from StackInHand demonstrations; not the other way round.
+    let stack_set = DemoSet::load(&dir.join("demos-0.dxdm")).expect("stack file");
+    assert!(
+        dex_trainer::cloning::clone_rows(&[stack_set.clone(), in_hand.clone()], Task::Stack)
+            .is_ok()
+    );
+    assert!(dex_trainer::cloning::clone_rows(&[stack_set], Task::StackInHand).is_err());
+    let _ = std::fs::remove_dir_all(&dir);
+}

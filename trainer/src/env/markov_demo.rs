@@ -9,6 +9,13 @@
 //! so it is an oracle at any state: cloning it is plain regression, and DAgger can ask it about
 //! the learner's own states ([`crate::imitation`]).
 //!
+//! Placing differs from the phase machine's on purpose: brick 1 is not turned to brick 2's yaw (the
+//! stack predicate is an offset of origins and a misaligned brick rests on the studs inside it),
+//! and it comes down in proportion to how well it is centred rather than after a threshold. Both
+//! make the label a smooth function of the state: with the yaw-aligned, thresholded placing a
+//! cloned Stack policy hovered over brick 2 in 23 of 32 failures (docs/imitation.md); without it
+//! the demonstrator still stacks 96% (192/200, against 98.5%) and its clones do better.
+//!
 //! Thresholds are radians for fingers, metres and m/s, measured on the phase machine's episodes: a
 //! gripped brick holds the fingers at a mean 1.0-1.2 rad, the pre-shape is 0.5, settling fingers
 //! creep below 0.25 rad/s.
@@ -18,7 +25,7 @@ use dex_runtime::interface::ACT_DIM;
 use super::EnvError;
 use super::demo::{
     APPROACH_HEIGHT, CARRY_CLEARANCE, LIFT_HEIGHT, MAX_SPEED, PRESHAPE, add, nearest_equivalent,
-    sub, track, wrap_half_pi, yaw_of,
+    sub, track, yaw_of,
 };
 use super::environment::{GRASP_DEPTH, JacoEnv};
 use super::kinematics::{norm3, pinch_pose};
@@ -47,8 +54,10 @@ pub const DESCEND_YAW: f64 = 0.08;
 pub const PLACE_XY: f64 = 0.003;
 /// See [`PLACE_XY`].
 pub const PLACE_DZ: f64 = 0.007;
-/// Yaw error of the held brick to brick 2 below which it is lowered.
-pub const PLACE_YAW: f64 = 0.05;
+/// Horizontal offset of brick 1 from the stacking site within which it is lowered all the way.
+pub const PLACE_CENTRED: f64 = 0.003;
+/// Offset span (beyond [`PLACE_CENTRED`]) over which the lowering blends back to the carry height.
+pub const PLACE_BLEND: f64 = 0.007;
 /// Brick 1 height from which a held brick is carried rather than lifted straight up.
 pub const CARRY_FROM: f64 = 0.035;
 /// Speed of the pinch site while lowering onto brick 2.
@@ -129,7 +138,6 @@ impl MarkovDemonstrator {
         let on_stack = env.reward_state().predicates().stack;
         let site_xy = norm3(&[site[0] - b1[0], site[1] - b1[1], 0.0]);
         let placed = site_xy < PLACE_XY && b1[2] - site[2] < PLACE_DZ;
-        let place_yaw = hand_yaw + wrap_half_pi(yaw_of(&m2) - yaw_of(&m1));
         let stacking = matches!(self.task, Task::Stack | Task::StackInHand);
 
         let grasp_point = [b1[0], b1[1], b1[2] + GRASP_DEPTH];
@@ -170,34 +178,20 @@ impl MarkovDemonstrator {
                     MAX_SPEED,
                     1.0,
                 )
-            } else if site_xy < 0.004 && (place_yaw - hand_yaw).abs() < PLACE_YAW {
-                let want = [site[0], site[1], site[2] - 0.003];
-                (
-                    MarkovPhase::Lower,
-                    add(&pinch, &sub(&want, &b1)),
-                    place_yaw,
-                    LOWER_SPEED,
-                    1.0,
-                )
-            } else if site_xy < 0.01 && b1[2] < site[2] + CARRY_CLEARANCE - 0.005 {
-                // Lowered but off centre: hover just above the studs while centring.
-                let want = [site[0], site[1], site[2] + 0.008];
-                (
-                    MarkovPhase::Lower,
-                    add(&pinch, &sub(&want, &b1)),
-                    place_yaw,
-                    LOWER_SPEED,
-                    1.0,
-                )
             } else {
-                let want = [site[0], site[1], site[2] + CARRY_CLEARANCE];
-                (
-                    MarkovPhase::Carry,
-                    add(&pinch, &sub(&want, &b1)),
-                    place_yaw,
-                    MAX_SPEED,
-                    1.0,
-                )
+                // Carry to above the stacking site, coming down as brick 1 centres over it: fully
+                // lowered within PLACE_CENTRED, at the carry height from PLACE_CENTRED +
+                // PLACE_BLEND off. The hand keeps its yaw (the stack predicate and the studs do not
+                // need the bricks aligned), so the label is a smooth function of the offset.
+                let w = ((site_xy - PLACE_CENTRED) / PLACE_BLEND).clamp(0.0, 1.0);
+                let height = -0.003 + (CARRY_CLEARANCE + 0.003) * w;
+                let want = [site[0], site[1], site[2] + height];
+                let (phase, speed) = if w < 1.0 {
+                    (MarkovPhase::Lower, LOWER_SPEED)
+                } else {
+                    (MarkovPhase::Carry, MAX_SPEED)
+                };
+                (phase, add(&pinch, &sub(&want, &b1)), hand_yaw, speed, 1.0)
             }
         } else if self.task != Task::Reach && norm3(&to_grasp) < AT_GRASP && f_mean > PRESHAPE - 0.1
         {

@@ -76,6 +76,9 @@ pub struct BcConfig {
     pub batch: usize,
     /// Adam settings.
     pub adam: AdamConfig,
+    /// The learning rate follows a cosine from `adam.lr` down to `adam.lr * final_lr_fraction` at
+    /// the last step (1: constant, the first releases' schedule).
+    pub final_lr_fraction: f32,
     /// Floor of the scaling's standard deviation (observation units).
     pub min_std: f32,
     /// Bound of the scaled observations.
@@ -95,6 +98,7 @@ impl Default for BcConfig {
             steps: 20_000,
             batch: 256,
             adam: AdamConfig::default(),
+            final_lr_fraction: 1.0,
             min_std: 0.01,
             obs_clip: 5.0,
             label_clip: 0.97,
@@ -124,6 +128,9 @@ impl BcConfig {
         }
         if !(self.label_clip > 0.0 && self.label_clip <= 1.0) {
             return bad("bc.label_clip", "must be in (0, 1]");
+        }
+        if !(self.final_lr_fraction > 0.0 && self.final_lr_fraction <= 1.0) {
+            return bad("bc.final_lr_fraction", "must be in (0, 1]");
         }
         Ok(())
     }
@@ -213,7 +220,18 @@ pub fn train_bc(
         }
         loss /= (batch * act_dim) as f64;
         actor.backward(&params, &bx, &mut scratch, &dout, Some(&mut grads), None)?;
-        adam_step(&cfg.adam, &mut params, &grads, &mut local, &mut shared);
+        let adam = if cfg.final_lr_fraction == 1.0 {
+            cfg.adam
+        } else {
+            let progress = (step - 1) as f32 / (cfg.steps.max(2) - 1) as f32;
+            let cosine = 0.5 * (1.0 + (std::f32::consts::PI * progress).cos());
+            let f = cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * cosine;
+            AdamConfig {
+                lr: cfg.adam.lr * f,
+                ..cfg.adam
+            }
+        };
+        adam_step(&adam, &mut params, &grads, &mut local, &mut shared);
         window += loss;
         if step > cfg.steps - tail {
             tail_sum += loss;
@@ -272,6 +290,14 @@ mod tests {
         // Same seed, same result.
         let q = train_bc(&obs, &labels, 3, 2, &cfg, &mut |_, _| {}).unwrap();
         assert_eq!(p.params, q.params);
+        // A learning rate annealed to 5% fits too, along another path.
+        let annealed = BcConfig {
+            final_lr_fraction: 0.05,
+            ..cfg
+        };
+        let a = train_bc(&obs, &labels, 3, 2, &annealed, &mut |_, _| {}).unwrap();
+        assert!(a.final_loss < 0.01, "annealed loss {}", a.final_loss);
+        assert_ne!(a.params, p.params);
     }
 
     #[test]
@@ -281,6 +307,13 @@ mod tests {
             ..BcConfig::default()
         };
         assert!(bad.validate().is_err());
+        for f in [0.0, 1.5, f32::NAN] {
+            let bad = BcConfig {
+                final_lr_fraction: f,
+                ..BcConfig::default()
+            };
+            assert!(bad.validate().is_err(), "final_lr_fraction {f}");
+        }
         assert!(
             train_bc(
                 &[0.0; 5],

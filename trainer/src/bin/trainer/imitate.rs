@@ -41,6 +41,10 @@ pub struct ImitateArgs {
     /// Behaviour-cloning gradient steps per round.
     #[arg(long)]
     bc_steps: Option<u64>,
+    /// Cloning learning rate at the last step as a fraction of the first (cosine schedule; 1:
+    /// constant).
+    #[arg(long)]
+    bc_final_lr: Option<f32>,
     /// Hidden layer widths, comma-separated.
     #[arg(long, value_delimiter = ',')]
     hidden: Option<Vec<usize>>,
@@ -92,6 +96,9 @@ impl ImitateArgs {
         }
         if let Some(v) = self.bc_steps {
             c.bc.steps = v;
+        }
+        if let Some(v) = self.bc_final_lr {
+            c.bc.final_lr_fraction = v;
         }
         if let Some(v) = &self.hidden {
             c.bc.hidden = v.clone();
