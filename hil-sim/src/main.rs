@@ -62,6 +62,36 @@ enum Command {
         /// Fixed kernel send buffer per client socket in bytes (default: autotuned).
         #[arg(long)]
         sndbuf: Option<usize>,
+        /// Simulated time: the bus clock moves only on `< time US >` and the controller node polls
+        /// on SYNC, for a lockstep plant in another process (`hil-sim plant --connect`).
+        #[arg(long)]
+        lockstep: bool,
+    },
+    /// The plant alone, on a bus started by another process (`hil-sim bus --lockstep`, whose
+    /// controller may have been flashed over the bus first): NMT master, lockstep episodes.
+    Plant {
+        /// The bus, e.g. 127.0.0.1:29536.
+        #[arg(long)]
+        connect: SocketAddr,
+        /// Episodes.
+        #[arg(long, default_value_t = 1)]
+        episodes: u32,
+        /// Run seed; episode i starts from `episode_seed(seed, i)` as in `trainer eval`.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
+        #[arg(long, default_value = "stack")]
+        task: String,
+        /// Which plant.
+        #[arg(long, value_enum, default_value_t = DEFAULT_PLANT)]
+        plant: PlantKind,
+        /// Steps per episode for the synthetic plant.
+        #[arg(long, default_value_t = 150)]
+        steps: u32,
+        /// Write every applied command, one line per step: `episode step a0 ... a8` (shortest
+        /// round-trip decimal, as `trainer eval --actions` writes them).
+        #[arg(long)]
+        actions: Option<PathBuf>,
     },
     /// Closed-loop episodes: plant node and controller node over the bus.
     Run {
@@ -141,7 +171,19 @@ fn main() -> Result<()> {
             seconds,
             queue,
             sndbuf,
-        } => bus_command(port, log, policy, controller, seconds, queue, sndbuf),
+            lockstep,
+        } => bus_command(
+            port, log, policy, controller, seconds, queue, sndbuf, lockstep,
+        ),
+        Command::Plant {
+            connect,
+            episodes,
+            seed,
+            task,
+            plant,
+            steps,
+            actions,
+        } => plant_command(connect, episodes, seed, &task, plant, steps, actions),
         Command::Run {
             policy,
             episodes,
@@ -168,6 +210,7 @@ fn main() -> Result<()> {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn bus_command(
     port: u16,
     log: Option<PathBuf>,
@@ -176,12 +219,18 @@ fn bus_command(
     seconds: Option<f64>,
     queue: usize,
     sndbuf: Option<usize>,
+    lockstep: bool,
 ) -> Result<()> {
     let bus = Bus::start(BusConfig {
         addr: SocketAddr::from(([127, 0, 0, 1], port)),
         log,
         queue_depth: queue,
         send_buffer: sndbuf,
+        clock: if lockstep {
+            BusClock::Virtual
+        } else {
+            BusConfig::default().clock
+        },
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));
@@ -193,7 +242,11 @@ fn bus_command(
         Some(spawn_controller_node(
             bus.addr(),
             bytes,
-            TimeMode::RealTime,
+            if lockstep {
+                TimeMode::Lockstep
+            } else {
+                TimeMode::RealTime
+            },
             Arc::clone(&stop),
             Some(bus.status_slot()),
         )?)
@@ -325,6 +378,47 @@ fn node_command(_iface: &str, _policy: Option<PathBuf>) -> Result<()> {
     bail!(
         "built without the `socketcan` feature: `cargo build -p dex-hil-sim --features socketcan`"
     )
+}
+
+/// `hil-sim plant`: lockstep episodes against a controller on another process's bus.
+fn plant_command(
+    addr: SocketAddr,
+    episodes: u32,
+    seed: u64,
+    task: &str,
+    plant_kind: PlantKind,
+    steps: u32,
+    actions: Option<PathBuf>,
+) -> Result<()> {
+    let mut plant = make_plant(plant_kind, task, steps)?;
+    let mut node = PlantNode::connect_remote(addr, PlantTiming::Lockstep, 0x10)
+        .with_context(|| format!("cannot reach the bus at {addr}"))?;
+    node.start_controller()?;
+    let mut lines = String::new();
+    let mut successes = 0u32;
+    for e in 0..episodes {
+        node.record = Some(Vec::new());
+        let r = node.episode(plant.as_mut(), episode_seed(seed, u64::from(e)), u32::MAX)?;
+        println!(
+            "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
+            r.seed, r.episode_return, r.success, r.steps, r.steps_without_action
+        );
+        successes += u32::from(r.success);
+        for (t, a) in node.record.take().unwrap_or_default().iter().enumerate() {
+            lines.push_str(&dex_runtime::testkit::action_line(u64::from(e), t, a));
+        }
+    }
+    if !node.emergencies().is_empty() {
+        println!("emergencies: {:04X?}", node.emergencies());
+    }
+    println!(
+        "success {successes}/{episodes} ({:.1}%) mode lockstep-remote",
+        100.0 * f64::from(successes) / f64::from(episodes.max(1))
+    );
+    if let Some(path) = actions {
+        std::fs::write(&path, lines).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }
 
 fn make_plant(kind: PlantKind, task: &str, steps: u32) -> Result<Box<dyn Plant>> {

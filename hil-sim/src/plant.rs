@@ -298,10 +298,19 @@ pub enum PlantTiming {
     RealTime,
 }
 
+/// How a lockstep plant sets the bus's simulated time.
+enum TimeSetter<'b> {
+    /// The bus runs in this process.
+    InProcess(&'b Bus),
+    /// The bus is another process (`hil-sim bus --lockstep`): a second connection sends
+    /// `< time US >` and waits for the bus's answer before the cycle's frames go out.
+    Remote(Box<BusClient>),
+}
+
 /// The plant on the bus: also the NMT master of the run.
 pub struct PlantNode<'b> {
     client: BusClient,
-    bus: &'b Bus,
+    time: TimeSetter<'b>,
     timing: PlantTiming,
     node_id: u8,
     tx: [E2eSender; OBS_FRAMES],
@@ -319,9 +328,38 @@ pub struct PlantNode<'b> {
 impl<'b> PlantNode<'b> {
     /// Connects to `bus`.
     pub fn connect(bus: &'b Bus, timing: PlantTiming, node_id: u8) -> Result<Self, PlantError> {
+        Self::with_time(
+            BusClient::connect(bus.addr(), "vcan0")?,
+            TimeSetter::InProcess(bus),
+            timing,
+            node_id,
+        )
+    }
+
+    /// Connects to a bus in another process at `addr` (for lockstep, one started with a virtual
+    /// clock and a lockstep controller: `hil-sim bus --lockstep`).
+    pub fn connect_remote(
+        addr: std::net::SocketAddr,
+        timing: PlantTiming,
+        node_id: u8,
+    ) -> Result<PlantNode<'static>, PlantError> {
+        PlantNode::with_time(
+            BusClient::connect(addr, "vcan0")?,
+            TimeSetter::Remote(Box::new(BusClient::connect_raw(addr)?)),
+            timing,
+            node_id,
+        )
+    }
+
+    fn with_time(
+        client: BusClient,
+        time: TimeSetter<'b>,
+        timing: PlantTiming,
+        node_id: u8,
+    ) -> Result<Self, PlantError> {
         Ok(PlantNode {
-            client: BusClient::connect(bus.addr(), "vcan0")?,
-            bus,
+            client,
+            time,
             timing,
             node_id,
             tx: [E2eSender::default(); OBS_FRAMES],
@@ -343,7 +381,12 @@ impl<'b> PlantNode<'b> {
 
     fn tick(&mut self) -> Result<(), PlantError> {
         if self.timing == PlantTiming::Lockstep {
-            self.bus.set_time(self.sim_us);
+            match &mut self.time {
+                TimeSetter::InProcess(bus) => bus.set_time(self.sim_us),
+                TimeSetter::Remote(c) => {
+                    c.control(&format!("time {}", self.sim_us))?;
+                }
+            }
             let sync = CanFrame::standard(SYNC_ID, &[]).ok_or(PlantError::Sim("sync id".into()))?;
             self.client.queue(&sync);
         }

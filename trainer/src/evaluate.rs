@@ -139,6 +139,18 @@ pub fn run_episode(
     seed: u64,
     can_quantisation: bool,
 ) -> Result<(f64, bool), EvalError> {
+    run_episode_recorded(mlp, env, seed, can_quantisation, None)
+}
+
+/// [`run_episode`], pushing every applied physical command (after the CAN quantisation when on)
+/// into `record`.
+pub fn run_episode_recorded(
+    mlp: &mut Mlp<'_, EVAL_WIDTH>,
+    env: &mut JacoEnv,
+    seed: u64,
+    can_quantisation: bool,
+    mut record: Option<&mut Vec<[f32; ACT_DIM]>>,
+) -> Result<(f64, bool), EvalError> {
     let mut obs = env.reset(seed)?;
     let mut total = 0.0f64;
     loop {
@@ -151,6 +163,9 @@ pub fn run_episode(
         mlp.act(&input, &mut physical)?;
         if can_quantisation {
             physical = physical.map(quantise_action);
+        }
+        if let Some(r) = record.as_deref_mut() {
+            r.push(physical);
         }
         let out = env.step(&physical_to_env_action(&physical))?;
         total += f64::from(out.reward);
@@ -185,6 +200,39 @@ pub fn evaluate_policy_file(
     Ok(PolicyEval::from_outcomes(&episode_outcomes(
         file, scene, settings, on_episode,
     )?))
+}
+
+/// One evaluated episode with every command applied: (return, success, commands).
+pub type EpisodeTrace = (f64, bool, Vec<[f32; ACT_DIM]>);
+
+/// The [`EpisodeTrace`] of each of `settings.episodes` episodes, one thread, in episode order: what
+/// `trainer eval --actions` writes, to compare with a run over the bus.
+pub fn episode_traces(
+    file: &[u8],
+    scene: &Scene,
+    settings: &EvalSettings,
+) -> Result<Vec<EpisodeTrace>, EvalError> {
+    if settings.episodes == 0 {
+        return Err(EvalError::NoEpisodes);
+    }
+    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let view = decode_jaco_policy(aligned.as_bytes())?;
+    let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
+    let mut env = JacoEnv::new(scene, settings.env);
+    (0..settings.episodes)
+        .map(|i| {
+            let mut actions = Vec::new();
+            let seed = episode_seed(settings.seed, u64::from(i));
+            let (ret, ok) = run_episode_recorded(
+                &mut mlp,
+                &mut env,
+                seed,
+                settings.can_quantisation,
+                Some(&mut actions),
+            )?;
+            Ok((ret, ok, actions))
+        })
+        .collect()
 }
 
 /// (return, success) of each of `settings.episodes` episodes of a policy file, in episode order

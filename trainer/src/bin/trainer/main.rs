@@ -207,6 +207,10 @@ struct EvalArgs {
     /// Skip the CAN quantisation of observations and actions.
     #[arg(long)]
     no_can_quantisation: bool,
+    /// Also write every applied command to this file, one line per step (`episode step a0 ...
+    /// a8`; one thread), to compare with `hil-sim plant --actions` over the bus.
+    #[arg(long)]
+    actions: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]

@@ -640,9 +640,15 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
     let aligned = dex_runtime::testkit::aligned_copy(&bytes);
     let view = dex_policy::PolicyView::decode(aligned.as_bytes())
         .with_context(|| format!("{} is not a valid policy file", args.policy.display()))?;
-    let task = args
-        .task
-        .unwrap_or_else(|| TaskArg::from_policy(view.body().task));
+    let own = TaskArg::from_policy(view.body().task);
+    let task = args.task.unwrap_or(own);
+    if task != own {
+        bail!(
+            "{} is a {own:?} policy; --task {task:?} would evaluate it on another task (leave \
+             --task out, or pass {own:?})",
+            args.policy.display()
+        );
+    }
     let scene = load_scene()?;
     let settings = EvalSettings {
         env: config::RewardArg::TaskDefault.env_config(task.task()),
@@ -656,7 +662,24 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         false,
         "eval [{elapsed_precise}] [{bar:30}] {pos}/{len} episodes",
     );
-    let e = evaluate_policy_file(&bytes, &scene, &settings, &|| pb.inc(1))?;
+    let e = match &args.actions {
+        None => evaluate_policy_file(&bytes, &scene, &settings, &|| pb.inc(1))?,
+        Some(path) => {
+            let traces = dex_trainer::evaluate::episode_traces(&bytes, &scene, &settings)?;
+            let mut lines = String::new();
+            for (e, (_, _, actions)) in traces.iter().enumerate() {
+                for (t, a) in actions.iter().enumerate() {
+                    lines.push_str(&dex_runtime::testkit::action_line(e as u64, t, a));
+                }
+            }
+            write_atomic(path, lines.as_bytes())?;
+            let outcomes: Vec<(f64, bool)> = traces.iter().map(|&(r, ok, _)| (r, ok)).collect();
+            for (e, (r, ok)) in outcomes.iter().enumerate() {
+                println!("episode {e} return {r:.4} success {ok}");
+            }
+            PolicyEval::from_outcomes(&outcomes)
+        }
+    };
     pb.finish_and_clear();
     println!(
         "{} on {:?}, {} random starts from seed {}: {}",

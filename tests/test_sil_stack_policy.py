@@ -1,0 +1,73 @@
+"""The shipped Stack policy as an outside tool would deploy it: flashed into a controller that has
+no policy yet, from python-can over the virtual bus, then 10 MuJoCo episodes in lockstep with the
+plant in another process (`hil-sim plant --connect`). Success and every applied command equal
+`trainer eval`'s for the same starts (the runtime evaluator with the CAN quantisation)."""
+import re
+import shutil
+import subprocess
+import zlib
+
+from conftest import ROOT, Sim, cargo_target_dir
+from test_sil_flash import OK, flash, request, status
+
+EPISODES = 10
+SEED = 1_000_000  # trainer eval's default start seed
+POLICY = ROOT / "policies" / "stack.dxpl"
+
+
+def build(tmp_path, package, binary, features=()):
+    """Builds a binary (the optimised dev profile) and copies it out of target/, which other
+    tests rebuild with other features."""
+    args = ["cargo", "build", "-q", "-p", package, "--bin", binary]
+    if features:
+        args += ["--features", ",".join(features)]
+    subprocess.run(args, cwd=ROOT, check=True)
+    copy = tmp_path / binary
+    shutil.copy2(cargo_target_dir() / "debug" / binary, copy)
+    return copy
+
+
+def successes(text):
+    return [m == "true" for m in re.findall(r"^episode \d+ .*success (true|false)", text, re.M)]
+
+
+def test_stack_policy_flashed_over_the_bus_runs_like_trainer_eval(tmp_path):
+    hil_sim = build(tmp_path, "dex-hil-sim", "hil-sim", ["mujoco"])
+    trainer = build(tmp_path, "dex-trainer", "trainer")
+    image = POLICY.read_bytes()
+
+    s = Sim(hil_sim, None, tmp_path / "bus.log", ["--lockstep"])
+    try:
+        bus = s.bus()
+        assert flash(bus, image) == OK
+        assert status(bus)[0] == 2  # verified
+        assert request(bus, [0x04]) == bytes([0x84, OK])
+        assert status(bus) == (0, zlib.crc32(image))
+        bus.shutdown()
+        s.buses.remove(bus)
+        plant = subprocess.run(
+            [hil_sim, "plant", "--connect", f"127.0.0.1:{s.port}", "--task", "stack",
+             "--episodes", str(EPISODES), "--seed", str(SEED), "--actions", tmp_path / "bus.txt"],
+            capture_output=True, text=True, timeout=600,
+        )
+        assert plant.returncode == 0, plant.stdout + plant.stderr
+        assert "steps_without_action 0" in plant.stdout
+        assert "emergencies" not in plant.stdout, plant.stdout
+    finally:
+        s.close()
+
+    direct = subprocess.run(
+        [trainer, "eval", POLICY, "--episodes", str(EPISODES), "--seed", str(SEED),
+         "--actions", tmp_path / "eval.txt"],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert direct.returncode == 0, direct.stdout + direct.stderr
+    over_bus, evaluated = successes(plant.stdout), successes(direct.stdout)
+    assert len(over_bus) == EPISODES and over_bus == evaluated, (over_bus, evaluated)
+    a = (tmp_path / "bus.txt").read_text().splitlines()
+    b = (tmp_path / "eval.txt").read_text().splitlines()
+    assert len(a) == EPISODES * 150 and a == b, next(
+        ((i, x, y) for i, (x, y) in enumerate(zip(a, b)) if x != y), (len(a), len(b))
+    )
+    # The policy does its job over the bus too (its CI bound is 75% over 50 starts).
+    assert sum(over_bus) >= 5, over_bus
