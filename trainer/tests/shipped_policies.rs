@@ -3,7 +3,8 @@
 //! (seed 4,000,000), and succeed at least as often as `policies/README.md` promises for CI (needs
 //! `scripts/setup-mujoco.sh` to have run). A missing file fails the test.
 //!
-//! Measured on dev-2c (2026-12-01): Grasp 45/50, StackInHand 49/50, Stack 26/50. Each bound is two
+//! Measured on dev-2c (2026-12-01): Grasp 45/50, StackInHand 49/50, Stack 44/50 (the session-5
+//! file; the issue asks for >= 75%, 38/50, of Stack, and the bound 42 is above that). Each bound is two
 //! episodes below, so a machine whose physics rounds differently (outcomes of these chaotic
 //! episodes can flip) does not fail a policy that is as good.
 
@@ -53,5 +54,5 @@ fn stack_in_hand_policy_succeeds() {
 
 #[test]
 fn stack_policy_succeeds() {
-    check("stack.dxpl", Task::Stack, 24);
+    check("stack.dxpl", Task::Stack, 42);
 }

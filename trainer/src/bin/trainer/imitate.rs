@@ -69,9 +69,8 @@ impl ImitateArgs {
     /// The validated settings of seed `seed`.
     fn settings(&self, seed: u64) -> anyhow::Result<ImitationConfig> {
         let mut c = ImitationConfig {
-            task: self.task.task(),
             seed,
-            ..ImitationConfig::default()
+            ..ImitationConfig::for_task(self.task.task())
         };
         if let Some(v) = self.demo_episodes {
             c.demo_episodes = v;
