@@ -226,6 +226,9 @@ pub enum ImitationError {
     /// Evaluating a policy file failed.
     #[error("evaluation: {0}")]
     Eval(#[from] EvalError),
+    /// Another process works in the run folder.
+    #[error(transparent)]
+    Locked(#[from] crate::run_lock::RunLockError),
 }
 
 /// What a run reports while it works.
@@ -284,6 +287,8 @@ pub fn run_imitation(
 ) -> Result<ImitationSummary, ImitationError> {
     cfg.validate()?;
     std::fs::create_dir_all(dir).map_err(io(dir))?;
+    // Held until the run ends: a second run in this folder is refused at once.
+    let _lock = crate::run_lock::RunLock::acquire(dir)?;
     let settings_path = dir.join("settings.json");
     let settings = serde_json::to_string_pretty(cfg).unwrap_or_default();
     // Compared as settings, not text: a folder written before a setting existed (it takes its

@@ -13,6 +13,7 @@
 //!   cloning of them into a policy file; [`imitation`]: cloning plus DAgger rounds with the Markov
 //!   demonstrator as the oracle, the learner that solves Grasp and StackInHand.
 //! - [`plot`]: learning curves like the paper's (mean and min-max band over seeds).
+//! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
 //!
 //! The `trainer` binary puts these together (train, eval, plot, export).
 
@@ -26,3 +27,4 @@ pub mod jaco;
 pub mod learn;
 pub mod plot;
 pub mod policy_demo;
+pub mod run_lock;

@@ -173,7 +173,67 @@ fn all_components(seed: u64) -> RunConfig {
     cfg.ddpg.action_l2 = 1e-3;
     cfg.demos.fraction = 0.25;
     cfg.demos.bc_weight = 0.5;
+    cfg.demos.pretrain_updates = 300;
+    cfg.obs_norm.enabled = true;
+    cfg.obs_norm.frozen_from_demos = true;
     cfg
+}
+
+/// Mean |mu(s) - label| of the trainer's actor over 256 demonstration rows.
+fn cloning_gap(t: &Trainer, demos: &DemoBuffer) -> f32 {
+    let mut batch = dex_trainer::learn::replay::Batch::new(256, 6, 2);
+    demos.sample_into(&mut Rng::seed_from_u64(5), 256, &mut batch);
+    let mut err = 0.0f32;
+    for r in 0..256 {
+        let mut a = [0.0f32; 2];
+        t.act(&batch.obs[r * 6..(r + 1) * 6], &mut a).expect("act");
+        err += (a[0] - batch.bc_target[2 * r]).abs() + (a[1] - batch.bc_target[2 * r + 1]).abs();
+    }
+    err / 512.0
+}
+
+#[test]
+fn pretraining_on_demonstrations_starts_from_the_cloned_policy_with_frozen_scaling() {
+    let demos = demonstrations(40);
+    let mut cfg = small_config(6);
+    cfg.demos.fraction = 0.25;
+    cfg.demos.bc_weight = 1.0;
+    cfg.demos.pretrain_updates = 2_000;
+    cfg.obs_norm.enabled = true;
+    cfg.obs_norm.frozen_from_demos = true;
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    t.set_demonstrations(demos.clone()).expect("demos");
+    // The scaling is the demonstrations' mean and standard deviation.
+    let obs = demos.observations();
+    let n = (obs.len() / 6) as f64;
+    let mean0 = obs.iter().step_by(6).map(|&v| f64::from(v)).sum::<f64>() / n;
+    let frozen = t.obs_normalizer().expect("normaliser");
+    assert!(
+        (f64::from(frozen.mean[0]) - mean0).abs() < 1e-5,
+        "{frozen:?}"
+    );
+    let before = cloning_gap(&t, &demos);
+    let stop = AtomicBool::new(false);
+    // One episode (a run ends at an episode's end): the pre-training runs first; the episode is
+    // shorter than `learning_starts`, so every update is a pre-training one.
+    t.run(env, 1, &stop, &mut quiet).expect("run");
+    assert!(t.progress().transitions < 200);
+    assert_eq!(t.progress().updates, 2_000, "pre-training updates only");
+    let after = cloning_gap(&t, &demos);
+    eprintln!("mean |mu - label| before {before}, after pre-training {after}");
+    assert!(after < 0.15 && after < 0.3 * before, "{before} -> {after}");
+    // The run goes on from there: the first evaluation already succeeds, and the scaling never
+    // moves although the workers see states the demonstrations did not.
+    let s = t.run(env, 1_500, &stop, &mut quiet).expect("run");
+    let first = s.records.first().expect("an evaluation").success_rate;
+    assert!(first >= 0.9, "first evaluation after pre-training: {first}");
+    assert_eq!(t.obs_normalizer(), Some(frozen));
+    // Without pre-training the same run starts from noise.
+    cfg.demos.pretrain_updates = 0;
+    let mut cold = Trainer::new(cfg, 6, 2).expect("trainer");
+    cold.set_demonstrations(demos.clone()).expect("demos");
+    cold.run(env, 1, &stop, &mut quiet).expect("run");
+    assert!(cloning_gap(&cold, &demos) > 2.0 * after);
 }
 
 #[test]
@@ -233,6 +293,19 @@ fn component_settings_out_of_range_are_refused_before_training() {
     let mut cfg = small_config(1);
     cfg.n_step = 0;
     assert!(Trainer::new(cfg, 6, 2).is_err());
+    let mut cfg = small_config(1);
+    cfg.demos.pretrain_updates = 100;
+    assert!(
+        Trainer::new(cfg, 6, 2).is_err(),
+        "pre-training without demo rows"
+    );
+    let mut cfg = small_config(1);
+    cfg.obs_norm.enabled = true;
+    cfg.obs_norm.frozen_from_demos = true;
+    assert!(
+        Trainer::new(cfg, 6, 2).is_err(),
+        "scaling frozen on demonstrations without any"
+    );
     let mut cfg = small_config(1);
     cfg.td3.policy_delay = 0;
     assert!(Trainer::new(cfg, 6, 2).is_err());

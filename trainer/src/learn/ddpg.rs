@@ -383,11 +383,18 @@ pub struct ActorLoss {
     pub bc_weight: f32,
     /// Only rows where `Q(s, a_demo) > Q(s, mu(s))` count in the cloning term.
     pub q_filter: bool,
+    /// The cloning term (and `action_l2`) alone, without `-Q` and without the filter: the
+    /// pre-training on demonstrations, while the critic does not yet know anything.
+    pub clone_only: bool,
+    /// TD3+BC's scale (Fujimoto and Gu 2021): the `-Q` term is multiplied by
+    /// `q_normalisation / mean|Q|` of the batch (held constant in the gradient), so the cloning
+    /// term keeps its weight whatever the scale of the returns. 0: off (the term as it is).
+    pub q_normalisation: f32,
 }
 
 /// Actor gradient on `bufs.batch.obs` into `bufs.actor_grads`, for the loss `-1/N sum Q(s, mu(s))`
 /// (gradient flows through the critic's action input only) plus the [`ActorLoss`] terms. Returns
-/// the mean `Q(s, mu(s))`.
+/// the mean `Q(s, mu(s))` (0 with `clone_only`).
 pub fn actor_gradient(
     nets: &Networks,
     actor: &[f32],
@@ -403,7 +410,8 @@ pub fn actor_gradient(
     let ci = od + ad;
     let k = bufs.batch.demo_rows.min(n);
     let cloning = loss.bc_weight > 0.0 && k > 0;
-    if cloning && loss.q_filter {
+    let q_filter = loss.q_filter && !loss.clone_only;
+    if cloning && q_filter {
         // Q(s, a_demo) on the demonstration rows, for the filter.
         concat(
             &bufs.batch.obs,
@@ -421,33 +429,49 @@ pub fn actor_gradient(
     let act = nets
         .actor
         .forward(actor, &bufs.batch.obs, n, &mut bufs.actor_s)?;
-    concat(&bufs.batch.obs, act, n, od, ad, &mut bufs.critic_in);
-    let q = nets
-        .critic
-        .forward(critic, &bufs.critic_in[..n * ci], n, &mut bufs.critic_s)?;
     let inv_n = 1.0 / n as f32;
-    let mean_q = q.iter().sum::<f32>() * inv_n;
-    // Which demonstration rows the cloning term applies to (the filter compares with Q(s, mu(s))).
+    let mut mean_q = 0.0;
     bufs.bc_rows_used = 0;
-    if cloning {
-        for ((flag, &qd), &qp) in bufs.y[..k].iter_mut().zip(&bufs.q_demo[..k]).zip(q) {
-            let keep = !loss.q_filter || qd > qp;
-            *flag = if keep { 1.0 } else { 0.0 };
-            bufs.bc_rows_used += usize::from(keep);
+    if loss.clone_only {
+        bufs.dact[..n * ad].fill(0.0);
+        if cloning {
+            bufs.y[..k].fill(1.0);
+            bufs.bc_rows_used = k;
         }
-    }
-    bufs.dq[..n].fill(-inv_n);
-    nets.critic.backward(
-        critic,
-        &bufs.critic_in[..n * ci],
-        &mut bufs.critic_s,
-        &bufs.dq[..n],
-        None,
-        Some(&mut bufs.dcritic_in),
-    )?;
-    for r in 0..n {
-        bufs.dact[r * ad..(r + 1) * ad]
-            .copy_from_slice(&bufs.dcritic_in[r * ci + od..(r + 1) * ci]);
+    } else {
+        concat(&bufs.batch.obs, act, n, od, ad, &mut bufs.critic_in);
+        let q = nets
+            .critic
+            .forward(critic, &bufs.critic_in[..n * ci], n, &mut bufs.critic_s)?;
+        mean_q = q.iter().sum::<f32>() * inv_n;
+        // Which demonstration rows the cloning term applies to (the filter compares with
+        // Q(s, mu(s))).
+        if cloning {
+            for ((flag, &qd), &qp) in bufs.y[..k].iter_mut().zip(&bufs.q_demo[..k]).zip(q) {
+                let keep = !q_filter || qd > qp;
+                *flag = if keep { 1.0 } else { 0.0 };
+                bufs.bc_rows_used += usize::from(keep);
+            }
+        }
+        let lambda = if loss.q_normalisation > 0.0 {
+            let mean_abs = q.iter().map(|v| v.abs()).sum::<f32>() * inv_n;
+            loss.q_normalisation / mean_abs.max(1e-6)
+        } else {
+            1.0
+        };
+        bufs.dq[..n].fill(-inv_n * lambda);
+        nets.critic.backward(
+            critic,
+            &bufs.critic_in[..n * ci],
+            &mut bufs.critic_s,
+            &bufs.dq[..n],
+            None,
+            Some(&mut bufs.dcritic_in),
+        )?;
+        for r in 0..n {
+            bufs.dact[r * ad..(r + 1) * ad]
+                .copy_from_slice(&bufs.dcritic_in[r * ci + od..(r + 1) * ci]);
+        }
     }
     // The actor's outputs are still in its scratch (the critic has its own).
     let mu = nets.actor.output(&bufs.actor_s, n);
@@ -607,6 +631,8 @@ mod tests {
             action_l2: 0.3,
             bc_weight: 0.7,
             q_filter: false,
+            clone_only: false,
+            q_normalisation: 0.0,
         };
         let total = |p: &[f32], bufs: &mut UpdateBuffers| {
             let mean_q = actor_gradient(&nets, p, &critic, &loss, bufs).expect("grad");
@@ -649,6 +675,8 @@ mod tests {
             action_l2: 0.0,
             bc_weight: 1.0,
             q_filter: true,
+            clone_only: false,
+            q_normalisation: 0.0,
         };
         actor_gradient(&nets, &actor, &critic, &filtered, &mut bufs).expect("grad");
         let kept = bufs.bc_rows_used;

@@ -25,6 +25,15 @@ pub struct DemoDataConfig {
     pub bc_weight: f32,
     /// Apply the cloning term only where `Q(s, a_demo) > Q(s, mu(s))` (Nair et al.'s Q-filter).
     pub q_filter: bool,
+    /// Updates on demonstration rows alone before the first environment step (DDPGfD's
+    /// pre-training): the critic learns the demonstrations' returns by the usual TD target and the
+    /// actor clones the labels (the cloning term alone: no `-Q`, no filter, weight 1). The run then
+    /// starts from a behaviour-cloned policy and a critic that rates it, instead of from noise.
+    pub pretrain_updates: u64,
+    /// TD3+BC's normalisation of the `-Q` term (`alpha / mean|Q|`, Fujimoto and Gu 2021; they use
+    /// alpha = 2.5): keeps the cloning term from being drowned once the critic's returns grow, so
+    /// a pre-trained policy is fine-tuned instead of forgotten. 0: off.
+    pub q_normalisation: f32,
 }
 
 impl Default for DemoDataConfig {
@@ -33,6 +42,8 @@ impl Default for DemoDataConfig {
             fraction: 0.0,
             bc_weight: 0.0,
             q_filter: true,
+            pretrain_updates: 0,
+            q_normalisation: 0.0,
         }
     }
 }
@@ -56,6 +67,15 @@ impl DemoDataConfig {
         }
         if !(self.bc_weight >= 0.0 && self.bc_weight.is_finite()) {
             return bad("demos.bc_weight", "must be finite and non-negative");
+        }
+        if !(self.q_normalisation >= 0.0 && self.q_normalisation.is_finite()) {
+            return bad("demos.q_normalisation", "must be finite and non-negative");
+        }
+        if self.pretrain_updates > 0 && self.fraction == 0.0 {
+            return bad(
+                "demos.pretrain_updates",
+                "pre-training needs the demonstration buffer (demos.fraction > 0)",
+            );
         }
         if self.bc_weight > 0.0 && self.fraction == 0.0 {
             return bad(
@@ -161,6 +181,11 @@ impl DemoBuffer {
         self.rows.dims()
     }
 
+    /// The observations before each step, row-major (`len() * obs_dim` values).
+    pub fn observations(&self) -> &[f32] {
+        self.rows.observations()
+    }
+
     /// Fills rows `0..k` of `batch` (transitions and `batch.bc_target`) with `k` transitions drawn
     /// uniformly with replacement and sets `batch.demo_rows = k`.
     pub fn sample_into(&self, rng: &mut Rng, k: usize, batch: &mut Batch) {
@@ -186,6 +211,8 @@ mod tests {
             fraction: 0.25,
             bc_weight: 1.0,
             q_filter: true,
+            pretrain_updates: 0,
+            q_normalisation: 0.0,
         };
         assert!(ok.validate().is_ok());
         assert_eq!(ok.rows(256), 64);
@@ -204,6 +231,12 @@ mod tests {
             },
             DemoDataConfig {
                 fraction: 0.0,
+                ..ok
+            },
+            DemoDataConfig {
+                fraction: 0.0,
+                bc_weight: 0.0,
+                pretrain_updates: 10,
                 ..ok
             },
         ] {

@@ -18,6 +18,11 @@ pub struct ObsNormConfig {
     pub enabled: bool,
     /// Floor on the standard deviation, so constant components do not blow up.
     pub min_std: f32,
+    /// Measure the statistics once on the run's demonstration buffer and keep them fixed (no
+    /// running update): the networks then see the same scale from the first update on, the
+    /// pretraining on demonstrations included, and a state the demonstrations never visited cannot
+    /// move the scale under a trained critic. Needs `enabled` and demonstrations in the batches.
+    pub frozen_from_demos: bool,
 }
 
 impl Default for ObsNormConfig {
@@ -25,6 +30,7 @@ impl Default for ObsNormConfig {
         ObsNormConfig {
             enabled: false,
             min_std: 1e-2,
+            frozen_from_demos: false,
         }
     }
 }

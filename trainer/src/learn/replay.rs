@@ -157,6 +157,11 @@ impl Replay {
         batch.len = end;
     }
 
+    /// The stored observations (before each step), row-major, oldest slot first.
+    pub fn observations(&self) -> &[f32] {
+        &self.obs[..self.len * self.obs_dim]
+    }
+
     /// Copies stored transition `i` into row `r` of `batch`.
     pub(crate) fn copy_row_into(&self, i: usize, batch: &mut Batch, r: usize) {
         let (o, a) = (self.obs_dim, self.act_dim);

@@ -187,6 +187,12 @@ impl RunConfig {
         if self.n_step == 0 || self.n_step > 100 {
             return bad("n_step", "must be in 1..=100");
         }
+        if self.obs_norm.frozen_from_demos && !(self.obs_norm.enabled && self.demos.uses_demos()) {
+            return bad(
+                "obs_norm.frozen_from_demos",
+                "needs obs_norm.enabled and demonstrations in the batches (demos.fraction > 0)",
+            );
+        }
         if self.demos.uses_demos() && self.quantise.aware_from.is_some() {
             return bad(
                 "demos.fraction",
@@ -421,6 +427,13 @@ impl Trainer {
                 got: demos.dims(),
             });
         }
+        // Frozen statistics are measured once, on a fresh run (a checkpoint keeps them).
+        if self.cfg.obs_norm.frozen_from_demos && self.shared.obs_stats.count == 0 {
+            let od = self.nets.obs_dim;
+            for row in demos.observations().chunks_exact(od) {
+                self.shared.obs_stats.push(row);
+            }
+        }
         self.demos = Some(demos);
         Ok(())
     }
@@ -598,45 +611,57 @@ impl Trainer {
             base_wall: counters.wall_s,
         };
         let mut records = Vec::new();
-        let (tx, rx) = mpsc::channel::<EvalRecord>();
-        let results: Vec<Result<(), LearnError>> = std::thread::scope(|s| {
-            let handles: Vec<_> = workers
-                .iter_mut()
-                .enumerate()
-                .map(|(id, ws)| {
-                    let tx = tx.clone();
-                    let ctx = &ctx;
-                    let make_env = &make_env;
-                    s.spawn(move || {
-                        let r = worker_loop(ctx, id, ws, make_env, &tx);
-                        if r.is_err() {
-                            ctx.failed.store(true, Ordering::Relaxed);
-                        }
-                        r
-                    })
-                })
-                .collect();
-            drop(tx);
-            loop {
-                match rx.recv_timeout(Duration::from_millis(500)) {
-                    Ok(rec) => {
-                        on_event(Event::Eval(&rec));
-                        records.push(rec);
-                    }
-                    Err(mpsc::RecvTimeoutError::Timeout) => {
-                        on_event(Event::Progress(&ctx.progress()));
-                    }
-                    Err(mpsc::RecvTimeoutError::Disconnected) => break,
-                }
+        // Pre-training on the demonstrations, on the calling thread before any worker starts
+        // (continued where a stop left it: no transition collected yet).
+        let pre = match workers.first_mut() {
+            Some(ws) if ctx.transitions.load(Ordering::Relaxed) == 0 => {
+                pretrain(&ctx, ws, on_event)
             }
-            handles
-                .into_iter()
-                .map(|h| {
-                    h.join()
-                        .unwrap_or(Err(LearnError::Worker("worker thread panicked")))
-                })
-                .collect()
-        });
+            _ => Ok(()),
+        };
+        let (tx, rx) = mpsc::channel::<EvalRecord>();
+        let results: Vec<Result<(), LearnError>> = if pre.is_err() {
+            vec![pre]
+        } else {
+            std::thread::scope(|s| {
+                let handles: Vec<_> = workers
+                    .iter_mut()
+                    .enumerate()
+                    .map(|(id, ws)| {
+                        let tx = tx.clone();
+                        let ctx = &ctx;
+                        let make_env = &make_env;
+                        s.spawn(move || {
+                            let r = worker_loop(ctx, id, ws, make_env, &tx);
+                            if r.is_err() {
+                                ctx.failed.store(true, Ordering::Relaxed);
+                            }
+                            r
+                        })
+                    })
+                    .collect();
+                drop(tx);
+                loop {
+                    match rx.recv_timeout(Duration::from_millis(500)) {
+                        Ok(rec) => {
+                            on_event(Event::Eval(&rec));
+                            records.push(rec);
+                        }
+                        Err(mpsc::RecvTimeoutError::Timeout) => {
+                            on_event(Event::Progress(&ctx.progress()));
+                        }
+                        Err(mpsc::RecvTimeoutError::Disconnected) => break,
+                    }
+                }
+                handles
+                    .into_iter()
+                    .map(|h| {
+                        h.join()
+                            .unwrap_or(Err(LearnError::Worker("worker thread panicked")))
+                    })
+                    .collect()
+            })
+        };
         let progress = ctx.progress();
         let stopped = stop.load(Ordering::Relaxed);
         counters.episodes = ctx.episodes.load(Ordering::Relaxed);
@@ -782,6 +807,76 @@ struct Local {
     target_actor_q: QuantisedCopy,
 }
 
+impl Local {
+    /// A worker's copies of the shared networks as they are now.
+    fn new(ctx: &Ctx<'_>) -> Result<Self, LearnError> {
+        let (cfg, nets) = (ctx.cfg, ctx.nets);
+        let a = lock(&ctx.actor)?;
+        let c = lock(&ctx.critic)?;
+        let (critic2, target_critic2, versions2) = match &ctx.critic2 {
+            Some(m) => {
+                let c2 = lock(m)?;
+                (
+                    c2.params.clone(),
+                    c2.target.clone(),
+                    [c2.version, c2.target_version],
+                )
+            }
+            None => (Vec::new(), Vec::new(), [0, 0]),
+        };
+        Ok(Local {
+            actor: a.params.clone(),
+            critic: c.params.clone(),
+            target_actor: a.target.clone(),
+            target_critic: c.target.clone(),
+            versions: [a.version, c.version, a.target_version, c.target_version],
+            critic2,
+            target_critic2,
+            versions2,
+            bufs: UpdateBuffers::new(nets, cfg.ddpg.batch_size),
+            act_scratch: nets.actor.scratch(1),
+            norm: lock(&ctx.obs_stats)?.normalizer(cfg.obs_norm.min_std),
+            actor_q: QuantisedCopy::default(),
+            target_actor_q: QuantisedCopy::default(),
+        })
+    }
+}
+
+/// DDPGfD's pre-training ([`DemoDataConfig::pretrain_updates`]): updates on demonstration rows
+/// alone with worker 0's random stream, until the update counter reaches the setting.
+fn pretrain(
+    ctx: &Ctx<'_>,
+    ws: &mut WorkerState,
+    on_event: &mut dyn FnMut(Event<'_>),
+) -> Result<(), LearnError> {
+    let want = ctx.cfg.demos.pretrain_updates;
+    if want == 0 || ctx.updates.load(Ordering::Relaxed) >= want {
+        return Ok(());
+    }
+    let mut local = Local::new(ctx)?;
+    let mut shown = Instant::now();
+    while ctx.updates.load(Ordering::Relaxed) < want {
+        if ctx.halted() {
+            return Ok(());
+        }
+        update(ctx, ws, &mut local, Phase::Pretrain)?;
+        if shown.elapsed() >= Duration::from_millis(500) {
+            on_event(Event::Progress(&ctx.progress()));
+            shown = Instant::now();
+        }
+    }
+    Ok(())
+}
+
+/// Which kind of update [`update`] does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Demonstration rows alone; the actor clones them (see [`DemoDataConfig::pretrain_updates`]).
+    Pretrain,
+    /// The run's update: replay rows (and demonstration rows where configured).
+    Run,
+}
+
 fn worker_loop<E: Env>(
     ctx: &Ctx<'_>,
     id: usize,
@@ -799,44 +894,16 @@ fn worker_loop<E: Env>(
             got: (env.obs_dim(), env.act_dim()),
         });
     }
-    let mut local = {
-        let a = lock(&ctx.actor)?;
-        let c = lock(&ctx.critic)?;
-        let (critic2, target_critic2, versions2) = match &ctx.critic2 {
-            Some(m) => {
-                let c2 = lock(m)?;
-                (
-                    c2.params.clone(),
-                    c2.target.clone(),
-                    [c2.version, c2.target_version],
-                )
-            }
-            None => (Vec::new(), Vec::new(), [0, 0]),
-        };
-        Local {
-            actor: a.params.clone(),
-            critic: c.params.clone(),
-            target_actor: a.target.clone(),
-            target_critic: c.target.clone(),
-            versions: [a.version, c.version, a.target_version, c.target_version],
-            critic2,
-            target_critic2,
-            versions2,
-            bufs: UpdateBuffers::new(nets, cfg.ddpg.batch_size),
-            act_scratch: nets.actor.scratch(1),
-            norm: lock(&ctx.obs_stats)?.normalizer(cfg.obs_norm.min_std),
-            actor_q: QuantisedCopy::default(),
-            target_actor_q: QuantisedCopy::default(),
-        }
-    };
+    let mut local = Local::new(ctx)?;
     let mut obs = vec![0.0f32; od];
     let mut next_obs = vec![0.0f32; od];
     let mut action = vec![0.0f32; ad];
     let mut obs_n = vec![0.0f32; od];
     let mut eval_scratch = nets.actor.scratch(1);
     let norm_on = cfg.obs_norm.enabled;
+    let norm_moves = norm_on && !cfg.obs_norm.frozen_from_demos;
     let observe = |x: &[f32], norm: &mut Normalizer| -> Result<(), LearnError> {
-        if norm_on {
+        if norm_moves {
             let mut st = lock(&ctx.obs_stats)?;
             st.push(x);
             st.write_normalizer(cfg.obs_norm.min_std, norm);
@@ -892,7 +959,7 @@ fn worker_loop<E: Env>(
         std::mem::swap(&mut obs, &mut next_obs);
         if stored >= cfg.learning_starts.max(1) {
             for _ in 0..cfg.updates_per_step {
-                update(ctx, ws, &mut local)?;
+                update(ctx, ws, &mut local, Phase::Run)?;
             }
         }
         if done {
@@ -974,25 +1041,41 @@ impl NetShared {
 
 /// One DDPG update on shared parameters (steps 1-6 of the module docs), with the TD3 pieces and
 /// the demonstration rows where configured.
-fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), LearnError> {
+fn update(
+    ctx: &Ctx<'_>,
+    ws: &mut WorkerState,
+    local: &mut Local,
+    phase: Phase,
+) -> Result<(), LearnError> {
     let cfg = ctx.cfg;
     let nets = ctx.nets;
     let n = cfg.ddpg.batch_size;
+    let pretraining = phase == Phase::Pretrain;
     let k = match ctx.demos {
+        Some(d) if pretraining => {
+            d.sample_into(&mut ws.rng, n, &mut local.bufs.batch);
+            local.bufs.batch.len = n;
+            n
+        }
         Some(d) if cfg.demos.uses_demos() => {
             let k = cfg.demos.rows(n);
             d.sample_into(&mut ws.rng, k, &mut local.bufs.batch);
             k
+        }
+        None if pretraining => {
+            return Err(LearnError::Worker("pre-training without demonstrations"));
         }
         _ => {
             local.bufs.batch.demo_rows = 0;
             0
         }
     };
-    match (&ctx.replay, &ws.replay) {
-        (Some(m), _) => lock(m)?.sample_after(&mut ws.rng, k, n - k, &mut local.bufs.batch),
-        (None, Some(r)) => r.sample_after(&mut ws.rng, k, n - k, &mut local.bufs.batch),
-        (None, None) => return Err(LearnError::Worker("no replay buffer")),
+    if !pretraining {
+        match (&ctx.replay, &ws.replay) {
+            (Some(m), _) => lock(m)?.sample_after(&mut ws.rng, k, n - k, &mut local.bufs.batch),
+            (None, Some(r)) => r.sample_after(&mut ws.rng, k, n - k, &mut local.bufs.batch),
+            (None, None) => return Err(LearnError::Worker("no replay buffer")),
+        }
     }
     if cfg.obs_norm.enabled {
         let rows = local.bufs.batch.len * nets.obs_dim;
@@ -1082,16 +1165,28 @@ fn update(ctx: &Ctx<'_>, ws: &mut WorkerState, local: &mut Local) -> Result<(), 
         local.versions2[0] = c.version;
     }
     let u = ctx.updates.fetch_add(1, Ordering::Relaxed) + 1;
-    if !td3.actor_due(u) {
+    if !pretraining && !td3.actor_due(u) {
         return Ok(());
     }
     let actor = local
         .actor_q
         .select(aware, &nets.actor, &local.actor, local.versions[0])?;
-    let loss = ActorLoss {
-        action_l2: cfg.ddpg.action_l2,
-        bc_weight: cfg.demos.bc_weight,
-        q_filter: cfg.demos.q_filter,
+    let loss = if pretraining {
+        ActorLoss {
+            action_l2: cfg.ddpg.action_l2,
+            bc_weight: 1.0,
+            q_filter: false,
+            clone_only: true,
+            q_normalisation: 0.0,
+        }
+    } else {
+        ActorLoss {
+            action_l2: cfg.ddpg.action_l2,
+            bc_weight: cfg.demos.bc_weight,
+            q_filter: cfg.demos.q_filter,
+            clone_only: false,
+            q_normalisation: cfg.demos.q_normalisation,
+        }
     };
     actor_gradient(nets, actor, &local.critic, &loss, &mut local.bufs)?;
     let t = cfg.ddpg.target;

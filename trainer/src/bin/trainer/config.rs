@@ -206,6 +206,7 @@ impl PresetArg {
                 s.run.noise.correlation = 0.0;
                 s.run.noise.scale.clear();
                 s.run.ddpg.action_l2 = 0.0;
+                s.run.obs_norm.frozen_from_demos = false;
                 s.demo_files.clear();
                 s.record_demos = 0;
             }

@@ -39,7 +39,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Train one run per seed; writes checkpoints, eval.jsonl, policy.dxpl per seed, and plots.
-    Train(TrainArgs),
+    Train(Box<TrainArgs>),
     /// Success rate of a policy file over random starts, with a 95% confidence interval.
     Eval(EvalArgs),
     /// Plot a run folder's learning curves (PNG and SVG).
@@ -152,7 +152,8 @@ struct TrainArgs {
     /// conflicts with the component flags.
     #[arg(long, value_enum, conflicts_with_all = [
         "demos", "record_demos", "demo_fraction", "bc_weight", "no_q_filter", "td3", "n_step",
-        "noise_correlation", "finger_noise_scale", "action_l2",
+        "noise_correlation", "finger_noise_scale", "action_l2", "pretrain_updates",
+        "obs_norm_from_demos", "q_normalisation",
     ])]
     preset: Option<PresetArg>,
     /// Demonstration files (`trainer demos`), comma-separated: the run's demonstration buffer.
@@ -186,6 +187,16 @@ struct TrainArgs {
     /// Weight of the action penalty in the actor's loss.
     #[arg(long)]
     action_l2: Option<f32>,
+    /// Updates on the demonstrations alone before the first environment step (DDPGfD's
+    /// pre-training: the actor clones them, the critic learns their returns).
+    #[arg(long)]
+    pretrain_updates: Option<u64>,
+    /// Normalise observations by statistics measured once on the demonstrations (fixed).
+    #[arg(long)]
+    obs_norm_from_demos: bool,
+    /// TD3+BC's scale of the `-Q` term: alpha / mean|Q| (0: off; TD3+BC uses 2.5).
+    #[arg(long)]
+    q_normalisation: Option<f32>,
 }
 
 #[derive(Args, Debug)]
@@ -314,7 +325,7 @@ fn export_int8(
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Train(args) => train::train(args),
+        Command::Train(args) => train::train(*args),
         Command::Eval(args) => train::eval(&args),
         Command::Demos(args) => demos::demos(&args),
         Command::Clone(args) => demos::clone(&args),

@@ -140,6 +140,16 @@ fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if let Some(w) = a.action_l2 {
         s.run.ddpg.action_l2 = w;
     }
+    if let Some(n) = a.pretrain_updates {
+        s.run.demos.pretrain_updates = n;
+    }
+    if let Some(q) = a.q_normalisation {
+        s.run.demos.q_normalisation = q;
+    }
+    if a.obs_norm_from_demos {
+        s.run.obs_norm.enabled = true;
+        s.run.obs_norm.frozen_from_demos = true;
+    }
 }
 
 /// The demonstration buffer of a seed's run: the settings' files, or `record_demos` episodes of
@@ -241,6 +251,8 @@ pub fn train_with(args: &TrainArgs, stop: &AtomicBool) -> anyhow::Result<bool> {
     let scene = load_scene()?;
     std::fs::create_dir_all(&s.out)
         .with_context(|| format!("cannot create {}", s.out.display()))?;
+    // Held until the run ends: a second trainer on this folder is refused at once.
+    let _lock = dex_trainer::run_lock::RunLock::acquire(&s.out)?;
     write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
     println!(
         "training {:?} ({:?} reward), {} transitions x {} seed(s), R = {}, W = {}, into {}",
@@ -305,6 +317,9 @@ fn train_seed(
                 dir.display()
             );
         }
+        // Records written after the checkpoint (a kill between the two) are dropped: the resumed
+        // run writes them again.
+        truncate_log(&log_path, t.progress().transitions)?;
         t
     } else {
         // A fresh run: nothing of an earlier one in this folder may be mistaken for its own.
@@ -384,9 +399,9 @@ fn train_seed(
             return Err(e).context("cannot append to eval.jsonl");
         }
         log.flush()?;
-        trainer
-            .save(&ckpt)
-            .with_context(|| format!("cannot write checkpoint {}", ckpt.display()))?;
+        // Selection before the checkpoint: a kill in between repeats this chunk on resume, which
+        // reaches the same policy and the same selection (deterministic), so the exported file is
+        // the uninterrupted run's.
         if !summary.stopped
             && let Some(line) = select_best(&trainer, s, seed, &dir, scene)?
         {
@@ -396,6 +411,9 @@ fn train_seed(
                 pb.println(line);
             }
         }
+        trainer
+            .save(&ckpt)
+            .with_context(|| format!("cannot write checkpoint {}", ckpt.display()))?;
         if summary.stopped {
             pb.abandon();
             return Ok(false);
@@ -470,6 +488,31 @@ fn export_checkpoint_trainer(
         out,
         scene,
     )
+}
+
+/// Keeps the records of `eval.jsonl` up to `transitions` (those a checkpoint holds), rewriting the
+/// file atomically when it has later ones.
+fn truncate_log(path: &Path, transitions: u64) -> anyhow::Result<()> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Ok(());
+    };
+    let keep: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            serde_json::from_str::<serde_json::Value>(l)
+                .ok()
+                .and_then(|v| v["transitions"].as_u64())
+                .is_some_and(|t| t <= transitions)
+        })
+        .collect();
+    if keep.len() != text.lines().count() {
+        let mut out = keep.join("\n");
+        if !out.is_empty() {
+            out.push('\n');
+        }
+        write_atomic(path, out.as_bytes())?;
+    }
+    Ok(())
 }
 
 /// Start seed of the checkpoint-selection evaluations: apart from the final evaluation's
