@@ -11,7 +11,9 @@ grasp=${1:-policies/grasp.dxpl}
 inhand=${2:-policies/stack-in-hand.dxpl}
 stack=${3:-policies/stack.dxpl}
 episodes=${4:-1000}
-bin=./target/release/trainer
+# Where cargo builds (CARGO_TARGET_DIR, build.target-dir or target/).
+bin=$(cargo metadata --format-version 1 --no-deps |
+  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/trainer
 [ -x "$bin" ] || cargo build --release -p dex-trainer --bin trainer
 echo "| task | policy | success over $episodes starts (95% CI) | paper |"
 echo "|---|---|---|---|"

@@ -14,8 +14,14 @@
 //!   demonstrator as the oracle, the learner that solves Grasp and StackInHand.
 //! - [`plot`]: learning curves like the paper's (mean and min-max band over seeds).
 //! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
+//! - [`train_settings`]: the settings of a training run (defaults < TOML file < flags), validated
+//!   once, and kept in each run folder as `settings.toml`.
+//! - [`train_run`]: the training pipeline of a run folder, for any front end: per seed train with
+//!   checkpoints (fresh or resumed), select the best checkpoint, export and evaluate it; progress
+//!   as events. [`run_plots`]: a run folder's learning curves.
 //!
-//! The `trainer` binary puts these together (train, eval, plot, export).
+//! The `trainer` binary is a front end: it turns flags into [`train_settings::TrainSettings`],
+//! calls these, and prints progress (train, eval, plot, export, figure, demos, clone, imitate).
 
 pub mod cloning;
 pub mod demos;
@@ -28,3 +34,6 @@ pub mod learn;
 pub mod plot;
 pub mod policy_demo;
 pub mod run_lock;
+pub mod run_plots;
+pub mod train_run;
+pub mod train_settings;

@@ -52,6 +52,20 @@ pub enum XAxis {
     Total,
     /// Transitions of one worker (total divided by the number of workers).
     PerWorker,
+    /// Wall-clock time of the run (the records' `wall_s`), in minutes.
+    WallClock,
+}
+
+impl XAxis {
+    /// The axis value of a record, in the axis's unit (millions of transitions, or minutes).
+    fn value(self, r: &EvalRecord) -> f64 {
+        let workers = r.transitions_per_worker.len().max(1) as f64;
+        match self {
+            XAxis::Total => r.transitions as f64 / 1e6,
+            XAxis::PerWorker => r.transitions as f64 / workers / 1e6,
+            XAxis::WallClock => r.wall_s / 60.0,
+        }
+    }
 }
 
 /// One curve: a label and the evaluation records of each seed.
@@ -68,17 +82,7 @@ pub fn aggregate(seeds: &[Vec<EvalRecord>], metric: Metric, x: XAxis) -> Vec<(f6
     let n = seeds.iter().map(Vec::len).min().unwrap_or(0);
     (0..n)
         .map(|i| {
-            let xs: Vec<f64> = seeds
-                .iter()
-                .map(|s| {
-                    let r = &s[i];
-                    let workers = r.transitions_per_worker.len().max(1) as f64;
-                    match x {
-                        XAxis::Total => r.transitions as f64,
-                        XAxis::PerWorker => r.transitions as f64 / workers,
-                    }
-                })
-                .collect();
+            let xs: Vec<f64> = seeds.iter().map(|s| x.value(&s[i])).collect();
             let ys: Vec<f64> = seeds
                 .iter()
                 .map(|s| match metric {
@@ -90,7 +94,7 @@ pub fn aggregate(seeds: &[Vec<EvalRecord>], metric: Metric, x: XAxis) -> Vec<(f6
             let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
             let min = ys.iter().copied().fold(f64::INFINITY, f64::min);
             let max = ys.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            (mean(&xs) / 1e6, mean(&ys), min, max)
+            (mean(&xs), mean(&ys), min, max)
         })
         .collect()
 }
@@ -131,6 +135,7 @@ where
     let x_label = match x {
         XAxis::Total => "transitions (millions, all workers)",
         XAxis::PerWorker => "transitions (millions, per worker)",
+        XAxis::WallClock => "wall-clock (minutes)",
     };
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 22))
@@ -247,4 +252,36 @@ pub fn read_eval_log(path: &Path) -> std::io::Result<(Vec<EvalRecord>, usize)> {
         }
     }
     Ok((records, bad))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(transitions: u64, workers: usize, wall_s: f64, success_rate: f64) -> EvalRecord {
+        EvalRecord {
+            eval_index: 1,
+            episodes: 1,
+            transitions,
+            transitions_per_worker: vec![transitions / workers as u64; workers],
+            updates: 0,
+            wall_s,
+            mean_return: 0.0,
+            success_rate,
+            train_return: 0.0,
+            worker: 0,
+        }
+    }
+
+    #[test]
+    fn the_axes_are_millions_of_transitions_or_minutes_and_seeds_are_averaged() {
+        let seeds = vec![
+            vec![record(2_000_000, 2, 120.0, 0.5)],
+            vec![record(4_000_000, 2, 240.0, 1.0)],
+        ];
+        let at = |x| aggregate(&seeds, Metric::SuccessRate, x)[0];
+        assert_eq!(at(XAxis::Total), (3.0, 0.75, 0.5, 1.0));
+        assert_eq!(at(XAxis::PerWorker).0, 1.5);
+        assert_eq!(at(XAxis::WallClock).0, 3.0);
+    }
 }

@@ -28,6 +28,8 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     let out_s = out.to_str().unwrap();
     let base = [
         "train",
+        "--preset",
+        "paper",
         "--task",
         "grasp",
         "--start",
@@ -76,7 +78,7 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     // Resume with another start scheme: refused, the checkpoint is kept.
     let before = std::fs::read(seed.join("checkpoint.bin")).unwrap();
     let mut other: Vec<&str> = base.to_vec();
-    other[4] = "mixture";
+    other[6] = "mixture";
     other.push("--resume");
     let o = trainer(&other);
     assert!(!o.status.success());
@@ -85,7 +87,7 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
 
     // Resume with the same settings and a larger budget: continues.
     let mut more: Vec<&str> = base.to_vec();
-    more[6] = "180";
+    more[8] = "180";
     more.push("--resume");
     let o = trainer(&more);
     assert!(o.status.success(), "{}", text(&o));

@@ -1,5 +1,6 @@
-//! One trainer per run folder, and `kill -9` at any moment loses nothing: a second `trainer train`
-//! on a busy folder is refused at once naming the holder's pid; a run killed 20 times at random
+//! One trainer per seed of a run folder, and `kill -9` at any moment loses nothing: a second
+//! `trainer train` on a seed being trained is refused at once naming the holder's pid (another
+//! seed of the same run, one job per core, is not); a run killed 20 times at random
 //! moments and resumed each time ends with the log and the exported policy of an uninterrupted run
 //! (needs MuJoCo).
 
@@ -88,7 +89,7 @@ fn a_second_trainer_on_a_busy_run_folder_is_refused_at_once() {
     let out = dir.join("run");
     let mut first = spawn(&cfg, &out, false);
     // Wait until the first holds the lock (it writes its pid into the lock file).
-    let lock = out.join(".lock");
+    let lock = out.join("seed-0/.lock");
     let t0 = Instant::now();
     while std::fs::read_to_string(&lock).map_or(true, |s| s.trim().is_empty()) {
         assert!(t0.elapsed() < Duration::from_secs(60), "no lock taken");
@@ -115,6 +116,26 @@ fn a_second_trainer_on_a_busy_run_folder_is_refused_at_once() {
         started.elapsed() < Duration::from_secs(20),
         "refused at once"
     );
+    // Another seed of the same run (one job per core) is not refused.
+    let mut other_seed = trainer_cmd(&[
+        "train",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--quiet",
+        "--seeds",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    .spawn()
+    .expect("spawn trainer");
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(
+        other_seed.try_wait().unwrap().is_none(),
+        "a job on another seed of the run was refused"
+    );
+    other_seed.kill().unwrap();
+    other_seed.wait().unwrap();
     // kill -9 leaves no stale lock: the next run takes the folder.
     first.kill().unwrap();
     first.wait().unwrap();

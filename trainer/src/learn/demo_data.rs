@@ -34,6 +34,9 @@ pub struct DemoDataConfig {
     /// alpha = 2.5): keeps the cloning term from being drowned once the critic's returns grow, so
     /// a pre-trained policy is fine-tuned instead of forgotten. 0: off.
     pub q_normalisation: f32,
+    /// The actor's learning rate during the pre-training (None: `actor_adam.lr`). Cloning takes a
+    /// higher rate than the fine-tuning that follows.
+    pub pretrain_actor_lr: Option<f32>,
 }
 
 impl Default for DemoDataConfig {
@@ -44,6 +47,7 @@ impl Default for DemoDataConfig {
             q_filter: true,
             pretrain_updates: 0,
             q_normalisation: 0.0,
+            pretrain_actor_lr: None,
         }
     }
 }
@@ -70,6 +74,12 @@ impl DemoDataConfig {
         }
         if !(self.q_normalisation >= 0.0 && self.q_normalisation.is_finite()) {
             return bad("demos.q_normalisation", "must be finite and non-negative");
+        }
+        if self
+            .pretrain_actor_lr
+            .is_some_and(|lr| !(lr > 0.0 && lr.is_finite()))
+        {
+            return bad("demos.pretrain_actor_lr", "must be positive and finite");
         }
         if self.pretrain_updates > 0 && self.fraction == 0.0 {
             return bad(
@@ -213,6 +223,7 @@ mod tests {
             q_filter: true,
             pretrain_updates: 0,
             q_normalisation: 0.0,
+            pretrain_actor_lr: None,
         };
         assert!(ok.validate().is_ok());
         assert_eq!(ok.rows(256), 64);

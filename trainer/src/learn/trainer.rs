@@ -1190,11 +1190,23 @@ fn update(
     };
     actor_gradient(nets, actor, &local.critic, &loss, &mut local.bufs)?;
     let t = cfg.ddpg.target;
+    // Pre-training is cloning: it may take its own learning rate (the fine-tuning's is lower).
+    let pretrain_adam;
+    let actor_adam = match cfg.demos.pretrain_actor_lr {
+        Some(lr) if pretraining => {
+            pretrain_adam = AdamConfig {
+                lr,
+                ..cfg.actor_adam
+            };
+            &pretrain_adam
+        }
+        _ => &cfg.actor_adam,
+    };
     {
         let mut guard = lock(&ctx.actor)?;
         let a = &mut *guard;
         adam_step(
-            &cfg.actor_adam,
+            actor_adam,
             &mut a.params,
             &local.bufs.actor_grads,
             &mut ws.actor_m,

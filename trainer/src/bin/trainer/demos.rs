@@ -12,7 +12,7 @@ use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::learn::bc::BcConfig;
 use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
 
-use crate::config::{RewardArg, TaskArg};
+use dex_trainer::train_settings::{RewardArg, TaskArg};
 
 /// `trainer demos` flags.
 #[derive(Args, Debug)]

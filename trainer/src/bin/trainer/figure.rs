@@ -17,9 +17,10 @@ use anyhow::{Context, bail};
 use serde::Deserialize;
 
 use dex_trainer::plot::Condition;
+use dex_trainer::run_plots::{plot_conditions, read_run};
+use dex_trainer::train_settings::{self, TrainSettings};
 
 use crate::TrainArgs;
-use crate::config;
 use crate::train;
 
 /// One curve of a figure.
@@ -46,7 +47,7 @@ pub struct Figure {
 
 /// Reads and checks a figure file: every run's config must load and validate; returns the figure
 /// and each run's settings (in the order of `runs`).
-pub fn load(path: &Path) -> anyhow::Result<(Figure, Vec<config::TrainSettings>)> {
+pub fn load(path: &Path) -> anyhow::Result<(Figure, Vec<TrainSettings>)> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let fig: Figure = toml::from_str(&text)
@@ -61,7 +62,7 @@ pub fn load(path: &Path) -> anyhow::Result<(Figure, Vec<config::TrainSettings>)>
         .runs
         .iter()
         .map(|r| {
-            config::load(Some(&r.config))
+            train_settings::load(Some(&r.config))
                 .and_then(|s| s.validate().map(|()| s))
                 .with_context(|| format!("run `{}` of {}", r.label, path.display()))
         })
@@ -94,12 +95,16 @@ pub fn figure(path: &Path, overrides: &TrainArgs, plot_only: bool) -> anyhow::Re
     let mut per_worker = false;
     for (r, s) in fig.runs.iter().zip(&settings) {
         per_worker |= s.run.workers > 1;
-        match train::read_run(&s.out) {
-            Ok((seeds, _)) => conditions.push(Condition {
+        match read_run(&s.out, &mut train::warn_malformed) {
+            Ok(run) => conditions.push(Condition {
                 label: r.label.clone(),
-                seeds,
+                seeds: run.seeds,
             }),
-            Err(e) => eprintln!("run `{}` left out of the plot: {e:#}", r.label),
+            Err(e) => eprintln!(
+                "run `{}` left out of the plot: {:#}",
+                r.label,
+                anyhow::Error::from(e)
+            ),
         }
     }
     if conditions.is_empty() {
@@ -112,7 +117,7 @@ pub fn figure(path: &Path, overrides: &TrainArgs, plot_only: bool) -> anyhow::Re
         .with_context(|| format!("figure `out` {} names no file", fig.out.display()))?
         .to_string_lossy();
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    for f in train::plot_conditions(
+    for f in plot_conditions(
         dir,
         &format!("{stem}_"),
         &fig.title,
@@ -156,7 +161,7 @@ mod tests {
         for e in std::fs::read_dir(dir.join("experiments")).unwrap() {
             let p = e.unwrap().path();
             if p.extension().is_some_and(|x| x == "toml") {
-                config::load(Some(&p))
+                train_settings::load(Some(&p))
                     .and_then(|s| s.validate())
                     .unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
             }

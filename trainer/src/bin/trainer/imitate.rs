@@ -9,7 +9,7 @@ use indicatif::ProgressBar;
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::imitation::{ImitationConfig, ImitationEvent, run_imitation};
 
-use crate::config::TaskArg;
+use dex_trainer::train_settings::TaskArg;
 
 /// `trainer imitate` flags (override the defaults of `ImitationConfig`).
 #[derive(Args, Debug)]

@@ -12,7 +12,6 @@
 //! trainer imitate --task grasp [--rounds 4] [--seeds 0,1,2] [--out runs/imitate]
 //! ```
 
-mod config;
 mod demos;
 mod figure;
 mod imitate;
@@ -23,7 +22,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 
-use config::{PresetArg, RewardArg, StartArg, TaskArg};
+use dex_trainer::train_settings::{PresetArg, RewardArg, StartArg, TaskArg, TrainSettings};
 
 #[derive(Parser)]
 #[command(
@@ -31,13 +30,13 @@ use config::{PresetArg, RewardArg, StartArg, TaskArg};
     version,
     about = "DPG-R / ADPG-R on the Jaco stacking tasks"
 )]
-struct Cli {
+pub(crate) struct Cli {
     #[command(subcommand)]
-    command: Command,
+    pub(crate) command: Command,
 }
 
 #[derive(Subcommand)]
-enum Command {
+pub(crate) enum Command {
     /// Train one run per seed; writes checkpoints, eval.jsonl, policy.dxpl per seed, and plots.
     Train(Box<TrainArgs>),
     /// Success rate of a policy file over random starts, with a 95% confidence interval.
@@ -148,12 +147,13 @@ struct TrainArgs {
     /// No progress bar (logs only).
     #[arg(long)]
     quiet: bool,
-    /// Start from a named configuration (`paper`: plain DDPG, none of the components below);
-    /// conflicts with the component flags.
+    /// Start from a named configuration (`paper`: plain DDPG, none of the components below;
+    /// `demos`: the learner from demonstrations, the default of Grasp, StackInHand and Stack
+    /// without --config and without component flags); conflicts with the component flags.
     #[arg(long, value_enum, conflicts_with_all = [
         "demos", "record_demos", "demo_fraction", "bc_weight", "no_q_filter", "td3", "n_step",
         "noise_correlation", "finger_noise_scale", "action_l2", "pretrain_updates",
-        "obs_norm_from_demos", "q_normalisation",
+        "obs_norm_from_demos", "q_normalisation", "pretrain_actor_lr",
     ])]
     preset: Option<PresetArg>,
     /// Demonstration files (`trainer demos`), comma-separated: the run's demonstration buffer.
@@ -197,6 +197,9 @@ struct TrainArgs {
     /// TD3+BC's scale of the `-Q` term: alpha / mean|Q| (0: off; TD3+BC uses 2.5).
     #[arg(long)]
     q_normalisation: Option<f32>,
+    /// The actor's learning rate during the pre-training (default: the actor's).
+    #[arg(long)]
+    pretrain_actor_lr: Option<f32>,
 }
 
 #[derive(Args, Debug)]
@@ -250,7 +253,7 @@ struct ExportArgs {
 fn export_int8(
     f32_path: &std::path::Path,
     out: &std::path::Path,
-    settings: &config::TrainSettings,
+    settings: &TrainSettings,
 ) -> anyhow::Result<()> {
     use dex_trainer::evaluate::{
         EvalSettings, action_error, evaluate_policy_file, heldout_observations_of_both,
@@ -354,7 +357,7 @@ fn main() -> anyhow::Result<()> {
                 (None, false) => f32_out.clone(),
                 (None, true) => dir.join("policy-int8.dxpl"),
             };
-            let settings: config::TrainSettings = toml::from_str(
+            let settings: TrainSettings = toml::from_str(
                 &std::fs::read_to_string(dir.join("settings.toml"))
                     .with_context(|| format!("{} is not a run folder", dir.display()))?,
             )

@@ -1,12 +1,97 @@
-//! `trainer train` settings: defaults, then a TOML file, then command-line flags, validated once.
+//! Settings of a training run (`trainer train`): defaults, then a TOML file, then command-line
+//! flags, validated once into one [`TrainSettings`] value.
+//!
+//! Each run folder keeps its settings as `settings.toml` ([`TrainSettings::to_toml`]); missing keys
+//! take their defaults, so folders written before a setting existed still load.
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
-use dex_trainer::env::{EnvConfig, Reward, StartScheme, Task};
-use dex_trainer::learn::{RunConfig, TargetUpdate};
+use crate::env::{EnvConfig, EnvError, Reward, StartScheme, Task};
+use crate::learn::{LearnError, RunConfig, TargetUpdate};
+
+/// Why settings could not be loaded, or are not valid.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SettingsError {
+    /// The settings file could not be read.
+    #[error("cannot read {}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The settings file is not TOML.
+    #[error("{} is not valid TOML", path.display())]
+    Toml {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error (boxed: it is large).
+        source: Box<toml::de::Error>,
+    },
+    /// A value of the file has the wrong type or is not one of the accepted names.
+    #[error("bad value in {}", path.display())]
+    BadValue {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error (boxed: it is large).
+        source: Box<toml::de::Error>,
+    },
+    /// The file has a key that no setting has (a typo serde would otherwise skip).
+    #[error("in {}", path.display())]
+    UnknownKey {
+        /// The file.
+        path: PathBuf,
+        /// The key.
+        source: UnknownSetting,
+    },
+    /// The settings could not be written as TOML.
+    #[error(transparent)]
+    Serialize(#[from] toml::ser::Error),
+    /// No seed.
+    #[error("at least one seed is needed")]
+    NoSeeds,
+    /// `transitions` is 0.
+    #[error("transitions must be positive")]
+    NoTransitions,
+    /// `checkpoint_every` is 0.
+    #[error("checkpoint_every must be positive")]
+    NoCheckpointPeriod,
+    /// The `[start]` scheme's settings are out of range.
+    #[error("invalid [start] settings")]
+    Start(#[source] EnvError),
+    /// `start.demonstrator_policy` without the along-demonstrations scheme.
+    #[error("start.demonstrator_policy needs start.scheme = \"along-demonstrations\"")]
+    DemonstratorPolicyScheme,
+    /// The learner refused its settings.
+    #[error("invalid learner settings")]
+    Learner(#[source] LearnError),
+    /// `run.demos.fraction` > 0 without demonstration files or recorded demonstrations.
+    #[error(
+        "run.demos.fraction > 0 needs demonstrations: demo_files (--demos) or record_demos \
+         (--record-demos)"
+    )]
+    DemosMissing,
+    /// Demonstrations given while `run.demos.fraction` is 0.
+    #[error(
+        "demonstrations given but run.demos.fraction is 0 (--demo-fraction): they would \
+         not be used"
+    )]
+    DemosUnused,
+    /// `demo_noise` is outside [0, 1].
+    #[error("demo_noise must be in [0, 1]")]
+    DemoNoise,
+}
+
+/// A key of a settings file that no setting has, by its dotted path (`run.updates_per_step`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown setting `{key}`")]
+pub struct UnknownSetting {
+    /// The dotted key path.
+    pub key: String,
+}
 
 /// Task names on the command line and in config files.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
@@ -127,7 +212,7 @@ impl Default for StartSettings {
         StartSettings {
             scheme: StartArg::Original,
             in_hand_probability: 0.5,
-            train_episode_steps: dex_trainer::env::start_states::DEMO_TRAIN_EPISODE_STEPS,
+            train_episode_steps: crate::env::start_states::DEMO_TRAIN_EPISODE_STEPS,
             demonstrator_policy: None,
         }
     }
@@ -192,6 +277,12 @@ pub struct TrainSettings {
 pub enum PresetArg {
     /// The paper's plain DDPG: no demonstrations, no TD3 pieces, one-step returns, white noise.
     Paper,
+    /// The learner from demonstrations, the best measured configuration (the default of
+    /// `trainer train --task grasp|stack-in-hand|stack` without a settings file): 200 recorded
+    /// Markov-demonstrator episodes, 20,000 pre-training updates (actor lr 3e-4), scaling frozen on
+    /// them, a quarter of each batch from them with the cloning term on every row, TD3+BC's Q
+    /// normalisation 2.5, actor lr 3e-5, gamma 0.98 for the 150-step tasks.
+    Demos,
 }
 
 impl PresetArg {
@@ -199,7 +290,7 @@ impl PresetArg {
     pub fn apply(self, s: &mut TrainSettings) {
         match self {
             PresetArg::Paper => {
-                let plain = dex_trainer::learn::RunConfig::default();
+                let plain = RunConfig::default();
                 s.run.td3 = plain.td3;
                 s.run.n_step = plain.n_step;
                 s.run.demos = plain.demos;
@@ -209,6 +300,25 @@ impl PresetArg {
                 s.run.obs_norm.frozen_from_demos = false;
                 s.demo_files.clear();
                 s.record_demos = 0;
+            }
+            PresetArg::Demos => {
+                if s.demo_files.is_empty() && s.record_demos == 0 {
+                    s.record_demos = 200;
+                }
+                s.run.obs_norm.enabled = true;
+                s.run.obs_norm.frozen_from_demos = true;
+                s.run.demos = crate::learn::DemoDataConfig {
+                    fraction: 0.25,
+                    bc_weight: 1.0,
+                    q_filter: false,
+                    pretrain_updates: 20_000,
+                    q_normalisation: 2.5,
+                    pretrain_actor_lr: Some(3e-4),
+                };
+                s.run.actor_adam.lr = 3e-5;
+                if s.task != TaskArg::Reach {
+                    s.run.ddpg.gamma = 0.98;
+                }
             }
         }
     }
@@ -277,7 +387,11 @@ fn merge(base: &mut toml::Value, overlay: toml::Value) {
 
 /// Every key of `overlay` must exist in `parsed` (the settings read back): catches typos that serde
 /// would silently skip.
-fn check_keys(overlay: &toml::Value, parsed: &toml::Value, path: &str) -> anyhow::Result<()> {
+fn check_keys(
+    overlay: &toml::Value,
+    parsed: &toml::Value,
+    path: &str,
+) -> Result<(), UnknownSetting> {
     if let (toml::Value::Table(o), toml::Value::Table(p)) = (overlay, parsed) {
         for (k, v) in o {
             let here = if path.is_empty() {
@@ -287,7 +401,7 @@ fn check_keys(overlay: &toml::Value, parsed: &toml::Value, path: &str) -> anyhow
             };
             match p.get(k) {
                 Some(pv) => check_keys(v, pv, &here)?,
-                None => bail!("unknown setting `{here}`"),
+                None => return Err(UnknownSetting { key: here }),
             }
         }
     }
@@ -295,67 +409,70 @@ fn check_keys(overlay: &toml::Value, parsed: &toml::Value, path: &str) -> anyhow
 }
 
 /// Defaults overlaid with the TOML file at `path`.
-pub fn load(path: Option<&Path>) -> anyhow::Result<TrainSettings> {
+pub fn load(path: Option<&Path>) -> Result<TrainSettings, SettingsError> {
     let Some(path) = path else {
         return Ok(TrainSettings::default());
     };
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let overlay: toml::Value =
-        toml::from_str(&text).with_context(|| format!("{} is not valid TOML", path.display()))?;
+    let text = std::fs::read_to_string(path).map_err(|source| SettingsError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let overlay: toml::Value = toml::from_str(&text).map_err(|source| SettingsError::Toml {
+        path: path.to_path_buf(),
+        source: Box::new(source),
+    })?;
     let mut base = toml::Value::try_from(TrainSettings::default())?;
     merge(&mut base, overlay.clone());
-    let settings: TrainSettings = base
-        .try_into()
-        .with_context(|| format!("bad value in {}", path.display()))?;
-    check_keys(&overlay, &toml::Value::try_from(&settings)?, "")
-        .with_context(|| format!("in {}", path.display()))?;
+    let settings: TrainSettings = base.try_into().map_err(|source| SettingsError::BadValue {
+        path: path.to_path_buf(),
+        source: Box::new(source),
+    })?;
+    check_keys(&overlay, &toml::Value::try_from(&settings)?, "").map_err(|source| {
+        SettingsError::UnknownKey {
+            path: path.to_path_buf(),
+            source,
+        }
+    })?;
     Ok(settings)
 }
 
 impl TrainSettings {
     /// Checks what the learner does not check itself.
-    pub fn validate(&self) -> anyhow::Result<()> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         if self.seeds.is_empty() {
-            bail!("at least one seed is needed");
+            return Err(SettingsError::NoSeeds);
         }
         if self.transitions == 0 {
-            bail!("transitions must be positive");
+            return Err(SettingsError::NoTransitions);
         }
         if self.checkpoint_every == 0 {
-            bail!("checkpoint_every must be positive");
+            return Err(SettingsError::NoCheckpointPeriod);
         }
         self.start
             .scheme()
             .validate()
-            .context("invalid [start] settings")?;
+            .map_err(SettingsError::Start)?;
         if self.start.demonstrator_policy.is_some()
             && self.start.scheme != StartArg::AlongDemonstrations
         {
-            bail!("start.demonstrator_policy needs start.scheme = \"along-demonstrations\"");
+            return Err(SettingsError::DemonstratorPolicyScheme);
         }
-        self.run.validate().context("invalid learner settings")?;
+        self.run.validate().map_err(SettingsError::Learner)?;
         let uses = self.run.demos.uses_demos();
         if uses && self.demo_files.is_empty() && self.record_demos == 0 {
-            bail!(
-                "run.demos.fraction > 0 needs demonstrations: demo_files (--demos) or record_demos \
-                 (--record-demos)"
-            );
+            return Err(SettingsError::DemosMissing);
         }
         if !uses && (!self.demo_files.is_empty() || self.record_demos > 0) {
-            bail!(
-                "demonstrations given but run.demos.fraction is 0 (--demo-fraction): they would \
-                 not be used"
-            );
+            return Err(SettingsError::DemosUnused);
         }
         if !(self.demo_noise >= 0.0 && self.demo_noise <= 1.0) {
-            bail!("demo_noise must be in [0, 1]");
+            return Err(SettingsError::DemoNoise);
         }
         Ok(())
     }
 
     /// The settings as TOML (written into each run folder).
-    pub fn to_toml(&self) -> anyhow::Result<String> {
+    pub fn to_toml(&self) -> Result<String, SettingsError> {
         Ok(toml::to_string_pretty(self)?)
     }
 }
@@ -363,6 +480,17 @@ impl TrainSettings {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An error and its causes, as `anyhow` prints them with `{:#}`.
+    fn chain(e: &dyn std::error::Error) -> String {
+        let mut s = e.to_string();
+        let mut cause = e.source();
+        while let Some(c) = cause {
+            s.push_str(&format!(": {c}"));
+            cause = c.source();
+        }
+        s
+    }
 
     #[test]
     fn file_values_override_defaults_and_typos_are_errors() {
@@ -383,10 +511,7 @@ mod tests {
         let polyak = dir.join("polyak.toml");
         std::fs::write(&polyak, "[run.ddpg.target.polyak]\ntau = 0.01\n").unwrap();
         let s = load(Some(&polyak)).unwrap();
-        assert_eq!(
-            s.run.ddpg.target,
-            dex_trainer::learn::TargetUpdate::Polyak { tau: 0.01 }
-        );
+        assert_eq!(s.run.ddpg.target, TargetUpdate::Polyak { tau: 0.01 });
         let copy = dir.join("copy.toml");
         std::fs::write(&copy, "[run.ddpg.target.copy]\nevery = 50\n").unwrap();
         let s = load(Some(&copy)).unwrap();
@@ -394,7 +519,7 @@ mod tests {
         let bad = dir.join("bad.toml");
         std::fs::write(&bad, "[run]\nupdates_per_stepp = 40\n").unwrap();
         let e = load(Some(&bad)).unwrap_err();
-        assert!(format!("{e:#}").contains("updates_per_stepp"), "{e:#}");
+        assert!(chain(&e).contains("updates_per_stepp"), "{}", chain(&e));
         std::fs::write(&bad, "task = \"juggle\"\n").unwrap();
         assert!(load(Some(&bad)).is_err());
         let demo = dir.join("demo.toml");
@@ -412,7 +537,7 @@ mod tests {
         )
         .unwrap();
         let e = load(Some(&bad)).unwrap().validate().unwrap_err();
-        assert!(format!("{e:#}").contains("in-hand probability"), "{e:#}");
+        assert!(chain(&e).contains("in-hand probability"), "{}", chain(&e));
         std::fs::write(&bad, "[start]\nscheme = \"teleport\"\n").unwrap();
         assert!(load(Some(&bad)).is_err());
         let _ = std::fs::remove_dir_all(&dir);
@@ -426,6 +551,16 @@ mod tests {
         t.remove("select_best_episodes");
         let old: TrainSettings = toml::from_str(&toml::to_string(&v).unwrap()).unwrap();
         assert_eq!(old, TrainSettings::default());
+    }
+
+    #[test]
+    fn unknown_keys_are_named_by_their_path() {
+        let parsed = toml::Value::try_from(TrainSettings::default()).unwrap();
+        let overlay: toml::Value = toml::from_str("[run]\nupdates_per_stepp = 40\n").unwrap();
+        let e = check_keys(&overlay, &parsed, "").unwrap_err();
+        assert_eq!(e.to_string(), "unknown setting `run.updates_per_stepp`");
+        let known: toml::Value = toml::from_str("[run]\nupdates_per_step = 40\n").unwrap();
+        assert!(check_keys(&known, &parsed, "").is_ok());
     }
 
     #[test]
