@@ -16,8 +16,11 @@ if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
 fi
 bash scripts/setup-mujoco.sh
 cargo build --release --locked -p dex-trainer --bin trainer -p dex-policy --features dex-policy/cli --bin policy
+# Where cargo put them: CARGO_TARGET_DIR, build.target-dir or target/.
+BIN=$(cargo metadata --format-version 1 --no-deps |
+  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release
 OUT=${OUT:-runs/main}
-./target/release/trainer imitate --out "$OUT" --final-eval-episodes 0 "$@"   # --task grasp is the default
-./target/release/trainer eval "$OUT/seed-0/policy.dxpl" --episodes 200
-./target/release/policy inspect "$OUT/seed-0/policy.dxpl"
+"$BIN/trainer" imitate --out "$OUT" --final-eval-episodes 0 "$@"   # --task grasp is the default
+"$BIN/trainer" eval "$OUT/seed-0/policy.dxpl" --episodes 200
+"$BIN/policy" inspect "$OUT/seed-0/policy.dxpl"
 echo "plots: $OUT/return.png $OUT/success.png"

@@ -46,6 +46,25 @@ cargo build --manifest-path fuzz/Cargo.toml --bins --locked
 step "firmware under QEMU (scripts/firmware-check.sh)"
 bash scripts/firmware-check.sh
 
+step "firmware check with another CARGO_TARGET_DIR (the scripts find cargo's output there)"
+# Developer set-ups often set CARGO_TARGET_DIR; the scripts ask cargo where it builds. A fresh
+# folder, seeded with a copy of the firmware build just made when that is the workspace's own
+# firmware/target (a cold build adds 2-3 min here; a shared CARGO_TARGET_DIR is not copied) but
+# without its binaries: the check must build them there and find them there (those left in the
+# usual folder were built for another policy, so reading them would fail the golden comparison).
+fw_target=$(cd firmware && cargo metadata --format-version 1 --no-deps |
+  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+host=$(rustc -vV | sed -n 's/^host: //p')
+alt=$(mktemp -d "${TMPDIR:-/tmp}/dex-alt-target.XXXXXX")
+trap 'rm -rf "$alt"' EXIT
+if [ "$fw_target" = "$PWD/firmware/target" ]; then
+  cp -a "$fw_target/." "$alt/"
+  rm -rf "$alt/firmware-check" "$alt/thumbv7em-none-eabihf/release/dex-firmware" "$alt/$host/release/fw-host"
+fi
+CARGO_TARGET_DIR="$alt" FIRMWARE_QUICK=1 bash scripts/firmware-check.sh
+rm -rf "$alt"
+trap - EXIT
+
 step "python harness (pytest)"
 .venv/bin/python -m pytest -q tests/
 

@@ -1,11 +1,12 @@
 """Shared fixtures of the software-in-the-loop tests (tests/test_sil_*.py).
 
-The `hil_sim` fixture builds `dex-hil-sim` with cargo (honouring CARGO_TARGET_DIR, default
-`target/`), the `sim` fixture starts `hil-sim bus` with the controller node on a free port of
-127.0.0.1 and stops it afterwards. Python talks to the bus with python-can's `socketcand`
+The `hil_sim` fixture builds `dex-hil-sim` with cargo (in the target directory `cargo metadata`
+names: CARGO_TARGET_DIR, build.target-dir, default `target/`), the `sim` fixture starts
+`hil-sim bus` with the controller node on a free port of 127.0.0.1 and stops it afterwards. Python talks to the bus with python-can's `socketcand`
 interface and reads/writes the frames with cantools and the repository's DBC.
 """
-import os
+import functools
+import json
 import re
 import select
 import socket
@@ -51,8 +52,14 @@ def protect(can_id: int, data: bytearray) -> bytearray:
     return data
 
 
+@functools.cache
 def cargo_target_dir() -> Path:
-    return Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+    """Where cargo builds this workspace (honours CARGO_TARGET_DIR and build.target-dir)."""
+    meta = subprocess.run(
+        ["cargo", "metadata", "--format-version", "1", "--no-deps"],
+        cwd=ROOT, check=True, capture_output=True, text=True,
+    )
+    return Path(json.loads(meta.stdout)["target_directory"])
 
 
 @pytest.fixture(scope="session")

@@ -4,8 +4,8 @@ import time
 import can
 
 from conftest import (
-    DB, EMCY_ID, HEARTBEAT_ID, NMT_START, OPERATIONAL, PERIOD, STOPPED, PlantTx, collect,
-    decode_action, emcy_codes, nmt, observation, protect, wait_heartbeat,
+    DB, EMCY_ID, HEARTBEAT_ID, NMT_START, OPERATIONAL, PERIOD, PREOP, STOPPED, PlantTx, collect,
+    crc8_sae_j1850, decode_action, emcy_codes, nmt, observation, protect, wait_heartbeat,
 )
 
 
@@ -26,6 +26,15 @@ def answered(got):
     return set(decode_action([m for _, m in got]))
 
 
+def assert_zero_actions(msgs, at_least):
+    """At least `at_least` complete action triples among `msgs`, every command zero velocity (an
+    empty decode would make a bare all() pass for a silent node)."""
+    actions = decode_action(msgs)
+    assert len(actions) >= at_least, f"{len(actions)} complete actions, want >= {at_least}"
+    assert all(len(a) == 9 for a in actions.values())
+    assert all(v == 0.0 for a in actions.values() for v in a.values()), actions
+
+
 def heartbeat_of(got):
     return [DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False) for _, m in got if m.arbitration_id == HEARTBEAT_ID]
 
@@ -44,7 +53,7 @@ def test_observation_timeout_safe_stops_with_emcy_8250(operational):
     assert hb and hb[0]["nmt_state"] == STOPPED and hb[0]["fault_code"] == 1
     zero = [m for t, m in after if t > emcy[0][0] and 0x280 <= m.arbitration_id <= 0x282]
     assert len(zero) >= 3 * 5  # a zero-velocity action every cycle
-    assert all(v == 0.0 for a in decode_action(zero).values() for v in a.values())
+    assert_zero_actions(zero, at_least=4)
     assert s.diag()["fault"] == "ObservationTimeout"
 
 
@@ -117,8 +126,9 @@ def test_out_of_range_value_faults_with_ff03(operational):
     got = collect(bus, 0.3)
     assert emcy_codes([m for _, m in got])[:1] == [0xFF03]
     hb = heartbeat_of(got)
-    assert hb[0]["nmt_state"] == STOPPED and hb[0]["fault_code"] == 3
-    assert all(v == 0.0 for a in decode_action([m for _, m in got]).values() for v in a.values())
+    assert hb and hb[0]["nmt_state"] == STOPPED and hb[0]["fault_code"] == 3
+    # The safe action at once, then every cycle of the 300 ms: at least 4 complete ones.
+    assert_zero_actions([m for _, m in got], at_least=4)
 
 
 def test_non_finite_value_faults_with_ff02(operational):
@@ -134,30 +144,77 @@ def test_non_finite_value_faults_with_ff02(operational):
     assert s.diag()["fault"] == "ObservationNonFinite"
 
 
-def test_bus_off_and_recovery(operational):
+def emcy_payload(m):
+    """The EMCY frame's bytes checked against its layout (E2E CRC and counter, error code LE,
+    fault code, state, two zero bytes); returns (error code, fault code, state)."""
+    data = bytes(m.data)
+    assert m.arbitration_id == EMCY_ID == 0x090 and not m.is_extended_id and len(data) == 8
+    assert data[0] == crc8_sae_j1850(EMCY_ID.to_bytes(2, "little") + data[1:]), data.hex()
+    assert data[1] & 0x0F <= 14 and data[6:] == b"\0\0", data.hex()
+    d = DB.decode_message(EMCY_ID, data, decode_choices=False)
+    assert d["error_code"] == int.from_bytes(data[2:4], "little")
+    return d["error_code"], d["fault_code"], d["state"]
+
+
+def test_bus_off_safe_action_then_emcy_8140_and_preoperational(operational):
     s, bus = operational
     tx = PlantTx()
-    run_plant(bus, tx, 2)
+    got, _ = run_plant(bus, tx, 3)
+    assert len(answered(got)) >= 2  # operational: observations are answered
     assert s.control("fault busoff 300") == "< ok >"
-    got, _ = run_plant(bus, tx, 10)  # 500 ms: 300 off, 200 back
+    got, _ = run_plant(bus, tx, 12)  # 600 ms: 300 off, 300 back
     errors = [(t, m) for t, m in got if m.is_error_frame]
     assert [m.arbitration_id for _, m in errors] == [0x040, 0x100]  # bus-off, restarted
     t_off, t_on = errors[0][0], errors[1][0]
     assert 0.25 < t_on - t_off < 0.4
     assert not [m for t, m in got if t_off < t < t_on - 0.01 and not m.is_error_frame]
-    # Observations were lost for 300 ms: the controller safe-stopped. Its emergency frame fell
-    # into the bus-off window and is lost (the runtime has no bus-off hook to repeat it); once
-    # the bus is back it sends zero-velocity actions every cycle and reports the fault.
-    assert s.diag()["fault"] == "ObservationTimeout"
-    back = [m for t, m in got if t > t_on + 0.005]
-    assert back and all(v == 0.0 for a in decode_action(back).values() for v in a.values())
+    # While the bus was off the controller kept sending (the safe action every cycle): the bus
+    # lost those frames, and the plant's.
     assert int(s.stats()["busoff_dropped"]) > 0
-    # Recovery: restart by NMT, emergency "error reset", actions again.
+    back = [(t, m) for t, m in got if t > t_on - 0.01 and not m.is_error_frame]
+    # Exactly one emergency: 0x8140 "recovered from bus-off", fault code 6, state pre-operational,
+    # sent as soon as the bus is back (the bus-off itself cannot be reported: nothing gets out).
+    emcy = [(t, m) for t, m in back if m.arbitration_id == EMCY_ID]
+    assert len(emcy) == 1, [m for _, m in emcy]
+    assert emcy_payload(emcy[0][1]) == (0x8140, 6, 1)
+    assert emcy[0][0] - t_on < 0.1
+    # Then the documented state: pre-operational (CiA 301 0x1029 default), announced at once by a
+    # heartbeat with fault code 6; every later heartbeat the same.
+    after_emcy = [m for t, m in back if t >= emcy[0][0]]
+    hb = [DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False) for m in after_emcy if m.arbitration_id == HEARTBEAT_ID]
+    assert hb and all((h["nmt_state"], h["state"], h["fault_code"]) == (PREOP, 1, 6) for h in hb), hb
+    assert after_emcy[1].arbitration_id == HEARTBEAT_ID  # sent together with the emergency
+    # Zero velocity every cycle once back (about 6 cycles in 300 ms), although the plant keeps
+    # sending observations: pre-operational does not evaluate them.
+    assert_zero_actions([m for _, m in back], at_least=4)
+    d = s.diag()
+    assert (d["state"], d["fault"], d["bus_off"], d["bus_off_events"]) == ("PreOperational", "BusOff", "false", "1"), d
+    # The master re-enables it: NMT start -> emergency "error reset", operational, actions again.
     nmt(bus, NMT_START)
     after, _ = run_plant(bus, tx, 4)
-    assert 0x0000 in emcy_codes([m for _, m in after])
+    assert [emcy_payload(m) for _, m in after if m.arbitration_id == EMCY_ID] == [(0x0000, 0, 1)]  # sent on leaving pre-op
     assert any(h["nmt_state"] == OPERATIONAL for h in heartbeat_of(after))
     assert len(answered(after)) >= 3
+
+
+def test_bus_off_until_cleared_in_preoperational(sim):
+    # `fault busoff 0` holds the bus off until `fault clear`: recovery when the test says so.
+    s = sim()
+    bus = s.bus()
+    wait_heartbeat(bus, PREOP, 2.0)
+    assert s.control("fault busoff 0") == "< ok >"
+    off = collect(bus, 0.4)
+    assert [m.arbitration_id for _, m in off] == [0x040], off  # the error frame, then silence
+    assert s.diag()["bus_off"] == "true"
+    assert s.control("fault clear") == "< ok >"
+    back = collect(bus, 0.3)
+    assert [m.arbitration_id for _, m in back if m.is_error_frame] == [0x100]
+    emcy = [emcy_payload(m) for _, m in back if m.arbitration_id == EMCY_ID]
+    assert emcy == [(0x8140, 6, 1)]  # once; the state stays pre-operational
+    assert_zero_actions([m for _, m in back], at_least=4)
+    hb = heartbeat_of(back)
+    assert hb and all((h["nmt_state"], h["fault_code"]) == (PREOP, 6) for h in hb), hb
+    assert s.diag()["state"] == "PreOperational"
 
 
 def test_injected_delay_reorders_in_bus_time(operational):

@@ -6,11 +6,12 @@ import zlib
 import can
 
 from conftest import (
-    LIMITS, NMT_PREOP, NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect,
+    DB, LIMITS, NMT_PREOP, NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect,
     decode_action, nmt, observation, wait_heartbeat,
 )
 
 REQ, RESP = 0x600 + NODE, 0x580 + NODE
+POLICY_INFO = 0x290
 OK, SEQUENCE, CRC, FORMAT, REFUSED, OPERATIONAL_REFUSED, NO_IMAGE = 0, 1, 3, 4, 5, 6, 7
 
 
@@ -56,6 +57,21 @@ def runs_policy(bus):
     return tx.sample in decode_action([m for _, m in got])
 
 
+def header_info(image):
+    """(format version, layout hash) from a policy file's header (docs/policy-format.md)."""
+    return int.from_bytes(image[4:6], "little"), int.from_bytes(image[8:12], "little")
+
+
+def policy_info(bus):
+    """(format version, layout hash) of the next policy-info frame. Call it right after the
+    activation response: the controller announces the file at its next cycle, and any other
+    request's wait in between would swallow the frame."""
+    got = collect(bus, 0.3, lambda m: m.arbitration_id == POLICY_INFO)
+    assert got and got[-1][1].arbitration_id == POLICY_INFO, "no policy-info frame"
+    d = DB.decode_message(POLICY_INFO, got[-1][1].data, decode_choices=False)
+    return d["format_version"], d["layout_hash"]
+
+
 def test_flash_verify_activate(sim, policies):
     s = sim("good")
     bus = s.bus()
@@ -67,9 +83,8 @@ def test_flash_verify_activate(sim, policies):
     assert status(bus)[0] == 2  # verified, not active yet
     assert status(bus)[1] == zlib.crc32(old)
     assert request(bus, [0x04]) == bytes([0x84, OK])
+    assert policy_info(bus) == header_info(new)  # policy info announced again
     assert status(bus) == (0, zlib.crc32(new))
-    got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x290)
-    assert got and got[-1][1].arbitration_id == 0x290  # policy info announced again
     assert runs_policy(bus)
 
 
@@ -87,6 +102,9 @@ def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
     def commands(image):
         assert flash(bus, image) == OK
         assert request(bus, [0x04]) == bytes([0x84, OK])
+        # The controller runs this file, not the previous one: its policy-info frame names the
+        # file's format version and layout hash (the int8 file says 2, the f32 file 1).
+        assert policy_info(bus) == header_info(image)
         assert status(bus) == (0, zlib.crc32(image))
         nmt(bus, NMT_START)
         wait_heartbeat(bus, OPERATIONAL, 1.0)
@@ -98,7 +116,9 @@ def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
         wait_heartbeat(bus, PREOP, 1.0)
         return decode_action([m for _, m in got])[tx.sample]
 
+    assert header_info(f32_image)[0] == 1 and header_info(int8_image)[0] == 2
     a, b = commands(f32_image), commands(int8_image)
+    assert a != b, "int8 commands identical to the f32 ones: is the int8 file running?"
     for name, limit in LIMITS.items():
         assert abs(a[name] - b[name]) <= 0.01 * 2 * limit, (name, a[name], b[name])
 

@@ -1,5 +1,5 @@
-//! Fuzzes the controller with arbitrary frame sequences and clock steps: it must never panic and
-//! must stay in a defined state.
+//! Fuzzes the controller with arbitrary frame sequences, clock steps and bus-off reports: it must
+//! never panic and must stay in a defined state.
 #![no_main]
 
 use dex_runtime::can::CanFrame;
@@ -18,8 +18,20 @@ fuzz_target!(|data: &[u8]| {
         clock.advance(u64::from(rec[0]) * 1000);
         let id = u16::from_le_bytes([rec[1], rec[2]]) & 0x7FF;
         let len = usize::from(rec[3] % 9).min(rec.len() - 4);
-        if let Some(frame) = CanFrame::standard(id, &rec[4..4 + len]) {
-            let _ = controller.on_frame(&frame, &clock);
+        // The controller uses neither 0x7FE nor 0x7FF: they stand for the driver's bus-off and
+        // recovery reports.
+        match id {
+            0x7FE => {
+                let _ = controller.on_bus_off();
+            }
+            0x7FF => {
+                let _ = controller.on_bus_recovered();
+            }
+            _ => {
+                if let Some(frame) = CanFrame::standard(id, &rec[4..4 + len]) {
+                    let _ = controller.on_frame(&frame, &clock);
+                }
+            }
         }
         let _ = controller.poll(&clock);
     }

@@ -155,7 +155,7 @@ pub struct FaultRule {
 pub enum ControlCommand {
     /// Add a fault rule.
     Fault(FaultRule),
-    /// Bus-off for this many microseconds of bus time.
+    /// Bus-off for this many microseconds of bus time (0: until [`ControlCommand::Clear`]).
     BusOff(u64),
     /// Remove every fault rule and end bus-off.
     Clear,
@@ -169,7 +169,8 @@ pub enum ControlCommand {
     Quit,
 }
 
-/// Parses control words, e.g. `fault drop 205 1`, `fault delay * 30000 0`, `fault busoff 300`.
+/// Parses control words, e.g. `fault drop 205 1`, `fault delay * 30000 0`, `fault busoff 300`
+/// (`fault busoff 0`: off until `fault clear`).
 pub fn parse_control(words: &[String]) -> Result<ControlCommand, String> {
     let w: Vec<&str> = words.iter().map(String::as_str).collect();
     let id = |s: &str| -> Result<Option<u32>, String> {
@@ -657,7 +658,12 @@ impl BusThread {
             ControlCommand::Fault(rule) => self.rules.push(rule),
             ControlCommand::BusOff(us) => {
                 let now = self.now();
-                self.busoff_until = Some(now.saturating_add(us));
+                let until = if us == 0 {
+                    u64::MAX
+                } else {
+                    now.saturating_add(us)
+                };
+                self.busoff_until = Some(until);
                 self.broadcast_error(ERR_BUSOFF, now);
             }
             ControlCommand::Clear => {

@@ -9,7 +9,7 @@
 //! | `0x01` init | size u32 LE | `0x81 status` |
 //! | `0x02` data | sequence u8, 1..6 data bytes | every [`BLOCK_SEGMENTS`] segments and at the last: `0x82 status seq` |
 //! | `0x03` end | CRC-32/ISO-HDLC of the whole file u32 LE | `0x83 status` (after verification) |
-//! | `0x04` activate | - | `0x84 status` |
+//! | `0x04` activate | - | `0x84 status` (after the controller loaded the file, or refused it) |
 //! | `0x05` abort | - | `0x85 status` |
 //! | `0x06` status | - | `0x86 transfer-state active-crc u32 LE` |
 //!
@@ -85,15 +85,32 @@ pub struct FlashServer {
     node: u8,
     slot: Slot,
     active_crc: u32,
+    activation_failures: u64,
 }
 
 /// What the node must do after a flash request.
 #[derive(Debug)]
 pub struct FlashOutcome {
-    /// Response frame to send, if any.
+    /// Response frame to send, if any (none for an activation: see [`FlashServer::activated`]).
     pub response: Option<CanFrame>,
     /// A verified file to load into the controller now (activation).
-    pub activate: Option<&'static [u8]>,
+    pub activate: Option<Activation>,
+}
+
+/// A verified file handed out for activation. The node loads it into the controller and reports
+/// the result with [`FlashServer::activated`], which answers the request: status 0 and the file's
+/// CRC as the active one when the controller took it, status 5 (refused) and the old CRC when not.
+#[derive(Debug)]
+pub struct Activation {
+    bytes: &'static [u8],
+    crc: u32,
+}
+
+impl Activation {
+    /// The policy file (8-byte aligned, living for the rest of the process).
+    pub fn bytes(&self) -> &'static [u8] {
+        self.bytes
+    }
 }
 
 impl FlashServer {
@@ -103,7 +120,14 @@ impl FlashServer {
             node,
             slot: Slot::Empty,
             active_crc: active.map_or(0, |b| CRC32.checksum(b)),
+            activation_failures: 0,
         }
+    }
+
+    /// Verified files the controller refused when they were activated (see
+    /// [`FlashServer::activated`]); reported in the node's `< diag >` line.
+    pub fn activation_failures(&self) -> u64 {
+        self.activation_failures
     }
 
     /// Whether `id` is this server's request identifier.
@@ -119,16 +143,20 @@ impl FlashServer {
     pub fn handle(&mut self, frame: &CanFrame, state: State) -> FlashOutcome {
         let data = frame.data();
         let cmd = data.first().copied().unwrap_or(0);
-        let mut activate = None;
         let status: Option<FlashStatus> = match cmd {
             0x01 => Some(self.init(data)),
             0x02 => self.segment(data),
             0x03 => Some(self.end(data)),
-            0x04 => {
-                let (s, a) = self.activate(state);
-                activate = a;
-                Some(s)
-            }
+            0x04 => match self.activate(state) {
+                Ok(a) => {
+                    // Answered by `activated` once the controller has loaded the file.
+                    return FlashOutcome {
+                        response: None,
+                        activate: Some(a),
+                    };
+                }
+                Err(s) => Some(s),
+            },
             0x05 => {
                 self.slot = Slot::Empty;
                 Some(FlashStatus::Ok)
@@ -155,7 +183,24 @@ impl FlashServer {
                 self.respond(&[0x80 | cmd, s as u8])
             }
         });
-        FlashOutcome { response, activate }
+        FlashOutcome {
+            response,
+            activate: None,
+        }
+    }
+
+    /// Completes an activation: `loaded` says whether the controller took the file. Returns the
+    /// `0x84` response (status 0, or 5 when refused; a refused file is gone from the slot and the
+    /// active policy and its CRC stay as they were).
+    pub fn activated(&mut self, activation: Activation, loaded: bool) -> Option<CanFrame> {
+        let status = if loaded {
+            self.active_crc = activation.crc;
+            FlashStatus::Ok
+        } else {
+            self.activation_failures = self.activation_failures.saturating_add(1);
+            FlashStatus::Refused
+        };
+        self.respond(&[0x84, status as u8])
     }
 
     fn init(&mut self, data: &[u8]) -> FlashStatus {
@@ -248,19 +293,22 @@ impl FlashServer {
         status
     }
 
-    fn activate(&mut self, state: State) -> (FlashStatus, Option<&'static [u8]>) {
+    fn activate(&mut self, state: State) -> Result<Activation, FlashStatus> {
         if state == State::Operational {
-            return (FlashStatus::Operational, None);
+            return Err(FlashStatus::Operational);
         }
         match std::mem::replace(&mut self.slot, Slot::Empty) {
             Slot::Verified(bytes) => {
-                self.active_crc = CRC32.checksum(bytes.as_bytes());
+                let crc = CRC32.checksum(bytes.as_bytes());
                 let leaked: &'static AlignedBytes = Box::leak(Box::new(bytes));
-                (FlashStatus::Ok, Some(leaked.as_bytes()))
+                Ok(Activation {
+                    bytes: leaked.as_bytes(),
+                    crc,
+                })
             }
             other => {
                 self.slot = other;
-                (FlashStatus::NoImage, None)
+                Err(FlashStatus::NoImage)
             }
         }
     }
@@ -297,6 +345,31 @@ mod tests {
         let c = crc.to_le_bytes();
         let r = s.handle(&req(&[3, c[0], c[1], c[2], c[3]]), State::PreOperational);
         Some(r.response.unwrap().data()[1])
+    }
+
+    #[test]
+    fn an_activation_the_controller_refuses_is_reported_and_keeps_the_old_crc() {
+        let old = dex_runtime::testkit::jaco_policy(&[16], 1).unwrap();
+        let new = dex_runtime::testkit::jaco_policy(&[8, 8], 2).unwrap();
+        let mut s = FlashServer::new(0x10, Some(&old));
+        assert_eq!(transfer(&mut s, &new, CRC32.checksum(&new), None), Some(0));
+        let activation = s
+            .handle(&req(&[4]), State::PreOperational)
+            .activate
+            .unwrap();
+        let response = s.activated(activation, false).unwrap();
+        assert_eq!(response.data(), &[0x84, FlashStatus::Refused as u8]);
+        assert_eq!(s.activation_failures(), 1);
+        let f = s
+            .handle(&req(&[6]), State::PreOperational)
+            .response
+            .unwrap();
+        assert_eq!(f.data()[1], 0, "slot emptied");
+        assert_eq!(
+            u32::from_le_bytes([f.data()[2], f.data()[3], f.data()[4], f.data()[5]]),
+            CRC32.checksum(&old),
+            "the old file is still reported active"
+        );
     }
 
     #[test]
@@ -345,8 +418,11 @@ mod tests {
         );
         assert_eq!(status(&mut s), (2, old_crc));
         let r = s.handle(&req(&[4]), State::SafeStop);
-        assert_eq!(r.response.unwrap().data(), &[0x84, 0]);
-        assert_eq!(r.activate.unwrap(), &new[..]);
+        assert!(r.response.is_none(), "answered after the controller's load");
+        let activation = r.activate.unwrap();
+        assert_eq!(activation.bytes(), &new[..]);
+        let response = s.activated(activation, true).unwrap();
+        assert_eq!(response.data(), &[0x84, 0]);
         assert_eq!(status(&mut s), (0, CRC32.checksum(&new)));
         // Out-of-sequence segment and data without init.
         let r = s.handle(&req(&[2, 0, 1, 2]), State::PreOperational);

@@ -6,6 +6,10 @@
 //! period boundary; in [`TimeMode::Lockstep`] the controller's clock is the bus timestamp of the
 //! frames it receives and the node polls when a CANopen SYNC frame (id 0x080, sent by the plant at
 //! the start of every simulated cycle) arrives, so the run is deterministic.
+//!
+//! Error frames: bus-off (Linux `CAN_ERR_BUSOFF`) goes to [`Controller::on_bus_off`], the restart
+//! after it (`CAN_ERR_RESTARTED`) to [`Controller::on_bus_recovered`]; the bus's
+//! `< fault busoff MILLIS >` sends both.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -15,6 +19,7 @@ use dex_policy::PolicyView;
 use dex_runtime::testkit::aligned_copy;
 use dex_runtime::{Clock, Controller, ControllerConfig, Diagnostics, MockClock, Outbox};
 
+use crate::bus::{ERR_BUSOFF, ERR_RESTARTED};
 use crate::client::{BusClient, ClientError, Received};
 use crate::flash::FlashServer;
 use dex_runtime::can::CanFrame;
@@ -73,15 +78,21 @@ pub struct NodeReport {
     pub load_error: Option<String>,
 }
 
-/// One status line: state, fault, policy load result and every diagnostic counter.
-pub fn status_line<const W: usize>(c: &Controller<'_, W>, load: &str) -> String {
+/// One status line: state, fault, policy load result, bus-off, every diagnostic counter and the
+/// number of flashed files the controller refused at activation.
+pub fn status_line<const W: usize>(
+    c: &Controller<'_, W>,
+    load: &str,
+    activation_failures: u64,
+) -> String {
     let d = c.diagnostics();
     format!(
-        "state={:?} fault={:?} policy={load} cycles={} missed_cycles={} evaluations={} overruns={} \
-         e2e_errors={} repeated={} wrong_sequence={} incomplete_observations={} no_new_data={} \
-         ignored_frames={}",
+        "state={:?} fault={:?} policy={load} bus_off={} cycles={} missed_cycles={} evaluations={} \
+         overruns={} e2e_errors={} repeated={} wrong_sequence={} incomplete_observations={} \
+         no_new_data={} ignored_frames={} bus_off_events={} activation_failures={activation_failures}",
         c.state(),
         c.fault(),
+        c.is_bus_off(),
         d.cycles,
         d.missed_cycles,
         d.evaluations,
@@ -91,7 +102,8 @@ pub fn status_line<const W: usize>(c: &Controller<'_, W>, load: &str) -> String 
         d.wrong_sequence,
         d.incomplete_observations,
         d.no_new_data,
-        d.ignored_frames
+        d.ignored_frames,
+        d.bus_off_events
     )
 }
 
@@ -133,14 +145,14 @@ pub fn run_controller_node(
         (None, Some(_)) => "loaded",
         (None, None) => "none",
     };
-    let publish = |c: &Controller<'_, NODE_WIDTH>| {
+    let publish = |c: &Controller<'_, NODE_WIDTH>, f: &FlashServer| {
         if let Some(slot) = status.as_ref()
             && let Ok(mut s) = slot.lock()
         {
-            *s = status_line(c, load);
+            *s = status_line(c, load, f.activation_failures());
         }
     };
-    publish(&controller);
+    publish(&controller, &flash);
     let result = match mode {
         TimeMode::RealTime => real_time_loop(
             port,
@@ -162,8 +174,8 @@ pub fn run_controller_node(
     })
 }
 
-/// Frames for the flash server go there (activation loads the new file); all others to the
-/// controller.
+/// Frames for the flash server go there (activation loads the new file, and only then is it
+/// answered: status 5 when the controller refuses it); all others to the controller.
 fn dispatch(
     controller: &mut Controller<'static, NODE_WIDTH>,
     flash: &mut FlashServer,
@@ -175,16 +187,36 @@ fn dispatch(
     }
     let outcome = flash.handle(frame, controller.state());
     let mut out = Outbox::new();
-    if let Some(bytes) = outcome.activate
-        && let Ok(view) = PolicyView::decode(bytes)
-        && let Err(e) = controller.load_policy(&view)
-    {
-        eprintln!("hil-sim: flashed policy refused at activation: {e}");
+    let mut response = outcome.response;
+    if let Some(activation) = outcome.activate {
+        let loaded = PolicyView::decode(activation.bytes())
+            .map_err(|e| e.to_string())
+            .and_then(|view| controller.load_policy(&view).map_err(|e| e.to_string()));
+        if let Err(e) = &loaded {
+            eprintln!("hil-sim: flashed policy refused at activation: {e}");
+        }
+        response = flash.activated(activation, loaded.is_ok());
     }
-    if let Some(r) = outcome.response {
+    if let Some(r) = response {
         let _ = out.push(r);
     }
     out
+}
+
+/// Hands an error frame to the controller: bus-off, then (if the same frame says so) the restart;
+/// other error classes are not the controller's business. Returns what to send, in order.
+fn on_error_frame(controller: &mut Controller<'static, NODE_WIDTH>, class: u32) -> [Outbox; 2] {
+    let off = if class & ERR_BUSOFF != 0 {
+        controller.on_bus_off()
+    } else {
+        Outbox::new()
+    };
+    let back = if class & ERR_RESTARTED != 0 {
+        controller.on_bus_recovered()
+    } else {
+        Outbox::new()
+    };
+    [off, back]
 }
 
 fn real_time_loop(
@@ -193,7 +225,7 @@ fn real_time_loop(
     flash: &mut FlashServer,
     period_us: u32,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>),
+    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashServer),
 ) -> Result<(), ClientError> {
     let clock = WallClock::new();
     let period = u64::from(period_us.max(1));
@@ -206,16 +238,25 @@ fn real_time_loop(
             let out = controller.poll(&clock);
             send(port, &out)?;
             next += period * ((now - next) / period + 1);
-            publish(controller);
+            publish(controller, flash);
             continue;
         }
         let wait = Duration::from_micros((next - now).min(20_000));
-        if let Some(Received::Frame(frame, _)) = port.receive_timeout(wait)? {
-            let out = dispatch(controller, flash, &frame, &clock);
-            send(port, &out)?;
-            if !out.is_empty() {
-                publish(controller);
+        match port.receive_timeout(wait)? {
+            Some(Received::Frame(frame, _)) => {
+                let out = dispatch(controller, flash, &frame, &clock);
+                send(port, &out)?;
+                if !out.is_empty() {
+                    publish(controller, flash);
+                }
             }
+            Some(Received::Error(class, _)) => {
+                for out in on_error_frame(controller, class) {
+                    send(port, &out)?;
+                }
+                publish(controller, flash);
+            }
+            None => {}
         }
     }
     Ok(())
@@ -226,22 +267,29 @@ fn lockstep_loop(
     controller: &mut Controller<'static, NODE_WIDTH>,
     flash: &mut FlashServer,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>),
+    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashServer),
 ) -> Result<(), ClientError> {
     let clock = MockClock::new(0);
     while !stop.load(Ordering::Relaxed) {
-        let Some(Received::Frame(frame, ts)) = port.receive_timeout(Duration::from_millis(50))?
-        else {
-            continue;
-        };
-        clock.set(ts);
-        let out = if frame.standard_id() == Some(SYNC_ID) {
-            controller.poll(&clock)
-        } else {
-            dispatch(controller, flash, &frame, &clock)
-        };
-        send(port, &out)?;
-        publish(controller);
+        match port.receive_timeout(Duration::from_millis(50))? {
+            Some(Received::Frame(frame, ts)) => {
+                clock.set(ts);
+                let out = if frame.standard_id() == Some(SYNC_ID) {
+                    controller.poll(&clock)
+                } else {
+                    dispatch(controller, flash, &frame, &clock)
+                };
+                send(port, &out)?;
+            }
+            Some(Received::Error(class, ts)) => {
+                clock.set(ts);
+                for out in on_error_frame(controller, class) {
+                    send(port, &out)?;
+                }
+            }
+            None => continue,
+        }
+        publish(controller, flash);
     }
     Ok(())
 }

@@ -99,6 +99,11 @@ fn control_commands_parse() {
         parse_control(&w("fault busoff 300")),
         Ok(ControlCommand::BusOff(300_000))
     );
+    assert_eq!(
+        parse_control(&w("fault busoff 0")),
+        Ok(ControlCommand::BusOff(0)),
+        "off until cleared"
+    );
     assert_eq!(parse_control(&w("fault clear")), Ok(ControlCommand::Clear));
     assert!(parse_control(&w("fault explode 1")).is_err());
     assert!(parse_control(&w("fault drop 2x0 1")).is_err());

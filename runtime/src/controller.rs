@@ -4,7 +4,8 @@
 //! [`Clock`]. Both return the frames to send in an [`Outbox`] (fixed capacity, no heap). An
 //! observation is evaluated as soon as its last frame arrives (so latency is one forward pass);
 //! `poll` runs the cycle bookkeeping once per period: watchdog, heartbeat, and the safe action in
-//! every state but operational.
+//! every state but operational. The CAN driver reports bus-off and its end through
+//! [`Controller::on_bus_off`] and [`Controller::on_bus_recovered`].
 
 use dex_policy::{FORMAT_VERSION, PolicyView};
 use heapless::Vec;
@@ -77,6 +78,8 @@ pub enum FaultCode {
     ActionNonFinite,
     /// Start was commanded with no policy loaded.
     NoPolicy,
+    /// The CAN controller went bus-off (reported with emergency 0x8140 once the bus is back).
+    BusOff,
 }
 
 impl FaultCode {
@@ -89,11 +92,12 @@ impl FaultCode {
             FaultCode::ObservationOutOfRange => 3,
             FaultCode::ActionNonFinite => 4,
             FaultCode::NoPolicy => 5,
+            FaultCode::BusOff => 6,
         }
     }
 
-    /// CANopen-style emergency error code (0x8250 is CANopen's RPDO timeout; 0xFFxx are
-    /// manufacturer-specific; 0x0000 is "error reset").
+    /// CANopen-style emergency error code (0x8250 is CANopen's RPDO timeout, 0x8140 its
+    /// "recovered from bus-off"; 0xFFxx are manufacturer-specific; 0x0000 is "error reset").
     pub const fn emcy_code(self) -> u16 {
         match self {
             FaultCode::None => 0x0000,
@@ -102,6 +106,7 @@ impl FaultCode {
             FaultCode::ObservationOutOfRange => 0xFF03,
             FaultCode::ActionNonFinite => 0xFF04,
             FaultCode::NoPolicy => 0xFF05,
+            FaultCode::BusOff => 0x8140,
         }
     }
 }
@@ -156,6 +161,8 @@ pub struct Diagnostics {
     pub no_new_data: u64,
     /// Frames with identifiers this controller does not use.
     pub ignored_frames: u64,
+    /// Times the CAN controller went bus-off ([`Controller::on_bus_off`]).
+    pub bus_off_events: u64,
 }
 
 /// Identity of the loaded policy, reported in the policy-info frame.
@@ -191,6 +198,7 @@ pub struct Controller<'p, const WIDTH: usize> {
     next_tick_us: Option<u64>,
     cycles_since_heartbeat: u32,
     announce: bool,
+    bus_off: bool,
     diag: Diagnostics,
 }
 
@@ -217,6 +225,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             next_tick_us: None,
             cycles_since_heartbeat: 0,
             announce: false,
+            bus_off: false,
             diag: Diagnostics::default(),
         }
     }
@@ -229,6 +238,12 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// Latched fault code.
     pub fn fault(&self) -> FaultCode {
         self.fault
+    }
+
+    /// Whether the CAN controller is bus-off (between [`Controller::on_bus_off`] and
+    /// [`Controller::on_bus_recovered`]).
+    pub fn is_bus_off(&self) -> bool {
+        self.bus_off
     }
 
     /// Diagnostic counters.
@@ -300,6 +315,52 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         out
     }
 
+    /// The CAN controller went bus-off (its transmit error counter passed 255): nothing it sends
+    /// reaches the bus until [`Controller::on_bus_recovered`].
+    ///
+    /// The reaction is CANopen's default for a communication error (CiA 301 object 0x1029,
+    /// value 0): operational goes to pre-operational; safe-stop, pre-operational and fault keep
+    /// their state. The fault `BusOff` is latched unless another fault already is, the partial
+    /// observation and the end-to-end counters are dropped (the plant's frames are lost too), and
+    /// the safe action goes out at once and then every cycle, as in every state but operational,
+    /// so the first command on the bus when it comes back is zero velocity. NMT start is refused
+    /// while the bus is off. Returns the frames to hand to the driver (it may drop them).
+    /// A second call before recovery does nothing.
+    pub fn on_bus_off(&mut self) -> Outbox {
+        let mut out = Outbox::new();
+        if self.bus_off {
+            return out;
+        }
+        self.bus_off = true;
+        self.diag.bus_off_events = self.diag.bus_off_events.saturating_add(1);
+        self.assembler.reset();
+        if self.fault == FaultCode::None {
+            self.fault = FaultCode::BusOff;
+        }
+        if self.state == State::Operational {
+            self.enter(State::PreOperational, &mut out);
+        }
+        self.send_safe_action(&mut out);
+        out
+    }
+
+    /// The CAN controller is back on the bus after a bus-off. Sends emergency 0x8140 ("recovered
+    /// from bus-off", fault code `BusOff`, the current state) once, then a heartbeat with the
+    /// state (pre-operational after a bus-off in operational: the master re-enables the node with
+    /// NMT start, which reports the error reset with emergency 0x0000) and the safe action.
+    /// Without a preceding [`Controller::on_bus_off`] it does nothing.
+    pub fn on_bus_recovered(&mut self) -> Outbox {
+        let mut out = Outbox::new();
+        if !self.bus_off {
+            return out;
+        }
+        self.bus_off = false;
+        self.push_emcy_code(FaultCode::BusOff, &mut out);
+        self.push_heartbeat(&mut out);
+        self.send_safe_action(&mut out);
+        out
+    }
+
     /// Runs the periodic part when a period boundary has passed: watchdog, heartbeat and the safe
     /// action outside operational. Call it at least once per period; calling it more often is fine.
     pub fn poll(&mut self, clock: &impl Clock) -> Outbox {
@@ -364,6 +425,11 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         };
         match (command, self.state) {
             (NmtCommand::Start, State::PreOperational | State::SafeStop) => {
+                if self.bus_off {
+                    // Nothing would reach the plant: stay, the master starts the node again
+                    // after the recovery emergency.
+                    return;
+                }
                 if self.policy.is_none() {
                     self.fault = FaultCode::NoPolicy;
                     self.push_emcy(out);
@@ -512,10 +578,15 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     }
 
     fn push_emcy(&mut self, out: &mut Outbox) {
+        self.push_emcy_code(self.fault, out);
+    }
+
+    /// Emergency for `fault` (its error code and fault code) with the current state.
+    fn push_emcy_code(&mut self, fault: FaultCode, out: &mut Outbox) {
         let f = emcy_frame(
             self.cfg.node_id,
-            self.fault.emcy_code(),
-            self.fault.code(),
+            fault.emcy_code(),
+            fault.code(),
             self.state.code(),
             &mut self.emcy_tx,
         );

@@ -8,7 +8,55 @@ use crate::can::messages::{
     ACTION_BASE_ID, ACTION_FRAMES, ACTION_QUANTITY, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NMT_ID,
     OBS_BASE_ID, OBS_FRAMES, POLICY_INFO_ID, SIGNALS_PER_FRAME,
 };
+use crate::controller::FaultCode;
 use crate::interface::{ACTION_JOINTS, OBSERVATION_FIELDS, Quantity};
+
+/// Every fault code, in code order (the DBC's value tables).
+const FAULTS: [FaultCode; 7] = [
+    FaultCode::None,
+    FaultCode::ObservationTimeout,
+    FaultCode::ObservationNonFinite,
+    FaultCode::ObservationOutOfRange,
+    FaultCode::ActionNonFinite,
+    FaultCode::NoPolicy,
+    FaultCode::BusOff,
+];
+
+/// The DBC name of a fault code and of its emergency error code.
+fn fault_names(fault: FaultCode) -> (&'static str, &'static str) {
+    match fault {
+        FaultCode::None => ("none", "error_reset"),
+        FaultCode::ObservationTimeout => ("observation_timeout", "observation_timeout"),
+        FaultCode::ObservationNonFinite => ("observation_non_finite", "observation_non_finite"),
+        FaultCode::ObservationOutOfRange => {
+            ("observation_out_of_range", "observation_out_of_range")
+        }
+        FaultCode::ActionNonFinite => ("action_non_finite", "action_non_finite"),
+        FaultCode::NoPolicy => ("no_policy", "no_policy"),
+        FaultCode::BusOff => ("bus_off", "recovered_from_bus_off"),
+    }
+}
+
+/// `VAL_ id signal v "name" ... ;` for the fault codes, or (`emcy`) their error codes by value.
+fn fault_values(out: &mut String, id: u16, signal: &str, emcy: bool) {
+    let mut rows: std::vec::Vec<(u16, &str)> = FAULTS
+        .iter()
+        .map(|&f| {
+            let (name, emcy_name) = fault_names(f);
+            if emcy {
+                (f.emcy_code(), emcy_name)
+            } else {
+                (u16::from(f.code()), name)
+            }
+        })
+        .collect();
+    rows.sort_unstable();
+    let _ = write!(out, "VAL_ {id} {signal}");
+    for (value, name) in rows {
+        let _ = write!(out, " {value} \"{name}\"");
+    }
+    out.push_str(" ;\n");
+}
 
 /// Name of observation value `index` in the DBC (`<field>_<n>`).
 pub fn observation_signal_name(index: usize) -> Option<String> {
@@ -150,6 +198,15 @@ pub fn generate(node: u8) -> String {
     let _ = writeln!(
         out,
         "VAL_ {NMT_ID} command 1 \"start\" 2 \"stop\" 128 \"enter_pre_operational\" 129 \"reset_node\" 130 \"reset_communication\" ;"
+    );
+    let emcy = EMCY_BASE_ID + u16::from(node);
+    fault_values(&mut out, emcy, "error_code", true);
+    fault_values(&mut out, emcy, "fault_code", false);
+    fault_values(
+        &mut out,
+        HEARTBEAT_BASE_ID + u16::from(node),
+        "fault_code",
+        false,
     );
     out
 }

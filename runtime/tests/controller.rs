@@ -343,3 +343,137 @@ fn heartbeat_period_and_missed_cycles() {
     assert_eq!(c.diagnostics().missed_cycles, 4);
     assert_eq!(c.diagnostics().cycles, 41);
 }
+
+fn emcy(out: &Outbox) -> Vec<&CanFrame> {
+    out.iter()
+        .filter(|f| f.standard_id() == Some(EMCY_BASE_ID + u16::from(NODE)))
+        .collect()
+}
+
+fn heartbeat(out: &Outbox) -> Option<[u8; 4]> {
+    out.iter()
+        .find(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))
+        .map(|f| f.data().try_into().unwrap())
+}
+
+#[test]
+fn bus_off_in_operational_sends_the_safe_action_then_emcy_8140_and_stays_preoperational() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = operational(&view, &clock);
+    let mut plant = Plant::new();
+    let trace = observation_trace(6, 5);
+    clock.advance(1_000);
+    assert!(actions(&feed(&mut c, &clock, &plant.frames(&trace[0]))).is_some());
+    // Half an observation, then bus-off: pre-operational at once, the safe action, no emergency
+    // (it could not get out), the fault latched.
+    for f in &plant.frames(&trace[1])[..7] {
+        c.on_frame(f, &clock);
+    }
+    let out = c.on_bus_off();
+    assert_eq!(c.state(), State::PreOperational);
+    assert_eq!(c.fault(), FaultCode::BusOff);
+    assert!(c.is_bus_off());
+    assert!(emcy(&out).is_empty());
+    let hb = heartbeat(&out).unwrap();
+    assert_eq!(
+        (hb[0], hb[2], hb[3]),
+        (0x7F, 1, 6),
+        "pre-operational, bus-off"
+    );
+    assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+    assert_eq!(c.diagnostics().bus_off_events, 1);
+    // While off: a second report changes nothing, every cycle sends the safe action, complete
+    // observations are not evaluated, NMT start is refused.
+    assert!(c.on_bus_off().is_empty());
+    assert_eq!(c.diagnostics().bus_off_events, 1);
+    for obs in &trace[2..4] {
+        clock.advance(PERIOD);
+        assert_eq!(actions(&c.poll(&clock)).unwrap(), [0.0; ACT_DIM]);
+        assert!(actions(&feed(&mut c, &clock, &plant.frames(obs))).is_none());
+    }
+    assert!(
+        c.on_frame(&nmt_frame(NmtCommand::Start, NODE), &clock)
+            .is_empty()
+    );
+    assert_eq!(c.state(), State::PreOperational);
+    // Recovery: EMCY 0x8140 once (fault code 6, state pre-operational), protected like every
+    // emergency; the heartbeat with the state; the safe action.
+    let out = c.on_bus_recovered();
+    assert!(!c.is_bus_off());
+    assert_eq!(ids(&out), [0x090, 0x710, 0x280, 0x281, 0x282]);
+    let e = emcy(&out)[0].data();
+    assert_eq!(e.len(), 8);
+    assert_eq!(&e[2..], &[0x40, 0x81, 6, 1, 0, 0]);
+    let mut rx = E2eReceiver::new(1);
+    assert_eq!(rx.check(EMCY_BASE_ID + u16::from(NODE), e), E2eStatus::Ok);
+    assert_eq!(heartbeat(&out).unwrap()[0], 0x7F);
+    assert_eq!(heartbeat(&out).unwrap()[2..], [1, 6]);
+    assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+    assert!(
+        c.on_bus_recovered().is_empty(),
+        "the emergency goes out once"
+    );
+    clock.advance(PERIOD);
+    assert!(emcy(&c.poll(&clock)).is_empty());
+    assert_eq!(c.state(), State::PreOperational);
+    // The master re-enables it: error reset, operational, and the first observation after the
+    // bus-off is accepted (the end-to-end counters were resynchronised).
+    let out = c.on_frame(&nmt_frame(NmtCommand::Start, NODE), &clock);
+    assert_eq!(emcy_code(&out), Some(0x0000));
+    assert_eq!(c.state(), State::Operational);
+    assert_eq!(c.fault(), FaultCode::None);
+    let wrong_sequence = c.diagnostics().wrong_sequence;
+    assert!(actions(&feed(&mut c, &clock, &plant.frames(&trace[5]))).is_some());
+    assert_eq!(c.diagnostics().wrong_sequence, wrong_sequence);
+}
+
+#[test]
+fn bus_off_keeps_safe_stop_and_its_first_fault() {
+    let clock = MockClock::new(0);
+    let file = policy();
+    let view = PolicyView::decode(file.as_bytes()).unwrap();
+    let mut c = operational(&view, &clock);
+    for tick in 1..=4 {
+        clock.set(tick * PERIOD + 1_000);
+        c.poll(&clock);
+    }
+    assert_eq!(
+        (c.state(), c.fault()),
+        (State::SafeStop, FaultCode::ObservationTimeout)
+    );
+    let out = c.on_bus_off();
+    assert_eq!(
+        (c.state(), c.fault()),
+        (State::SafeStop, FaultCode::ObservationTimeout)
+    );
+    assert!(heartbeat(&out).is_none(), "no state change");
+    assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+    let out = c.on_bus_recovered();
+    let e = emcy(&out)[0].data();
+    assert_eq!(&e[2..6], &[0x40, 0x81, 6, 3], "0x8140, bus-off, safe-stop");
+    assert_eq!(heartbeat(&out).unwrap()[0], 0x04);
+    assert_eq!(
+        heartbeat(&out).unwrap()[3],
+        1,
+        "the first fault stays latched"
+    );
+}
+
+#[test]
+fn recovery_without_bus_off_and_bus_off_in_pre_operational() {
+    let clock = MockClock::new(0);
+    let mut c = Controller::<64>::new(ControllerConfig::default());
+    c.poll(&clock);
+    assert!(c.on_bus_recovered().is_empty(), "nothing to recover from");
+    let out = c.on_bus_off();
+    assert_eq!(c.state(), State::PreOperational);
+    assert_eq!(c.fault(), FaultCode::BusOff);
+    assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
+    let out = c.on_bus_recovered();
+    assert_eq!(emcy_code(&out), Some(0x8140));
+    assert_eq!(c.state(), State::PreOperational);
+    assert_eq!(FaultCode::BusOff.code(), 6);
+    assert_eq!(FaultCode::BusOff.emcy_code(), 0x8140);
+}
