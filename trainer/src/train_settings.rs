@@ -278,10 +278,11 @@ pub enum PresetArg {
     /// The paper's plain DDPG: no demonstrations, no TD3 pieces, one-step returns, white noise.
     Paper,
     /// The learner from demonstrations, the best measured configuration (the default of
-    /// `trainer train --task grasp|stack-in-hand|stack` without a settings file): 200 recorded
-    /// Markov-demonstrator episodes, 20,000 pre-training updates (actor lr 3e-4), scaling frozen on
-    /// them, a quarter of each batch from them with the cloning term on every row, TD3+BC's Q
-    /// normalisation 2.5, actor lr 3e-5, gamma 0.98 for the 150-step tasks.
+    /// `trainer train --task grasp|stack-in-hand|stack` without a settings file; the Grasp
+    /// ablation's `no-norm` row, 47/50 and 46/50): 200 recorded Markov-demonstrator episodes,
+    /// 20,000 pre-training updates (actor lr 3e-4), a quarter of each batch from them with the
+    /// cloning term on every row, TD3+BC's Q normalisation 2.5, actor lr 3e-5, raw observations,
+    /// gamma 0.98 for the 150-step tasks.
     Demos,
 }
 
@@ -305,8 +306,6 @@ impl PresetArg {
                 if s.demo_files.is_empty() && s.record_demos == 0 {
                     s.record_demos = 200;
                 }
-                s.run.obs_norm.enabled = true;
-                s.run.obs_norm.frozen_from_demos = true;
                 s.run.demos = crate::learn::DemoDataConfig {
                     fraction: 0.25,
                     bc_weight: 1.0,

@@ -3,10 +3,9 @@
 //! Markov-demonstrator episodes, 5,000 pre-training updates, 10,000 transitions of fine-tuning with
 //! demonstration rows, the cloning term and TD3+BC's Q normalisation), measured on the exported
 //! policy file through the controller's runtime (50 random starts, CAN quantisation on). Seed 0
-//! scores 42/50 = 84% on dev-2c (AMD EPYC without AVX-512; one worker, fixed seed: deterministic
-//! for a given CPU). The assertion is 70%, as for the paper-DDPG check this replaces (60,000
-//! transitions, 78%, 430 s of the suite): an untrained actor scores 0%. Reach's >= 90% goal is
-//! checked on the imitation learner (`imitation_run.rs`).
+//! scores 50/50 on dev-2c (AMD EPYC without AVX-512; one worker, fixed seed: deterministic for a
+//! given CPU). The assertion is 90%, the bar for Reach (the paper-DDPG check this replaces
+//! ran 60,000 transitions for 78% against a 70% bar, 430 s of the suite).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use std::process::Command;
@@ -44,5 +43,5 @@ fn trainer_learns_reach_from_demonstrations() {
     assert!(out.join("seed-0/demos.dxdm").exists());
     assert!(out.join("return.png").exists() && out.join("success.svg").exists());
     let _ = std::fs::remove_dir_all(&out);
-    assert!(rate >= 0.7, "Reach success {rate} < 0.7");
+    assert!(rate >= 0.9, "Reach success {rate} < 0.9");
 }
