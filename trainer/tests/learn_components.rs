@@ -147,16 +147,7 @@ fn the_cloning_term_pulls_the_actor_onto_the_demonstrator() {
         t.set_demonstrations(demos.clone()).expect("demos");
         let stop = AtomicBool::new(false);
         t.run(env, 1_000, &stop, &mut quiet).expect("run");
-        let mut batch = dex_trainer::learn::replay::Batch::new(256, 6, 2);
-        demos.sample_into(&mut Rng::seed_from_u64(5), 256, &mut batch);
-        let mut err = 0.0f32;
-        for r in 0..256 {
-            let mut a = [0.0f32; 2];
-            t.act(&batch.obs[r * 6..(r + 1) * 6], &mut a).expect("act");
-            err +=
-                (a[0] - batch.bc_target[2 * r]).abs() + (a[1] - batch.bc_target[2 * r + 1]).abs();
-        }
-        err / 512.0
+        cloning_gap(&t, &demos)
     };
     let (with, without) = (gap(10.0), gap(0.0));
     eprintln!("mean |mu - label|: cloning {with}, none {without}");
