@@ -45,7 +45,7 @@ def test_bad_actions_raise_and_leave_the_env_usable(name, action, message):
     env, obs = fresh()
     with pytest.raises(ValueError, match=message) as err:
         env.step(action)
-    assert isinstance(err.value, gym.error.InvalidAction)
+    assert isinstance(err.value, gym.error.InvalidAction) and isinstance(err.value, dexstack.InvalidAction)
     assert_unchanged_and_usable(env, obs)
 
 

@@ -98,3 +98,18 @@ def test_demonstrator_solves_reach_through_a_wrapper():
     while not truncated:
         _, _, _, truncated, info = env.step(demo.act(env))
     assert info["success"]
+
+
+def test_markov_demonstrator_and_unquantised_policy():
+    env = dexstack.JacoEnv(task="reach")
+    demo = dexstack.Demonstrator("Reach", kind="markov")
+    env.reset(seed=12)
+    truncated = False
+    while not truncated:
+        _, _, _, truncated, info = env.step(demo.act(env))
+    assert info["success"]
+    obs, _ = gym.make("dexstack/Grasp-v0").reset(seed=0)
+    from conftest import ROOT
+    exact = dexstack.Policy(ROOT / "policies" / "grasp.dxpl", can_quantisation=False).act(obs)
+    can = dexstack.Policy(ROOT / "policies" / "grasp.dxpl").act(obs)
+    assert exact.shape == can.shape == (9,) and np.abs(exact - can).max() < 0.05

@@ -18,13 +18,14 @@ import gymnasium
 
 from . import _core
 from ._core import episode_seed, reward_names
-from .envs import TASKS, JacoEnv, VectorEnv
+from .envs import TASKS, InvalidAction, JacoEnv, VectorEnv
 from .agents import Demonstrator, Policy
 
 __all__ = [
     "TASKS",
     "JacoEnv",
     "VectorEnv",
+    "InvalidAction",
     "Demonstrator",
     "Policy",
     "episode_seed",
