@@ -19,6 +19,10 @@ def build(tmp_path, package, binary, features=()):
     """Builds a binary (the optimised dev profile) and copies it out of target/, which other
     tests rebuild with other features."""
     args = ["cargo", "build", "-q", "-p", package, "--bin", binary]
+    if package == "dex-trainer":
+        # With the dexstack package selected, cargo resolves features as for the build of
+        # scripts/setup-python.sh and reuses its dex-trainer library (tests/dexstack_util.py).
+        args += ["-p", "dexstack"]
     if features:
         args += ["--features", ",".join(features)]
     subprocess.run(args, cwd=ROOT, check=True)

@@ -4,6 +4,7 @@
 //! env-tool demo  --task grasp|stack|stack-in-hand|reach [--episodes 200] [--seed 0] [--verbose] [--markov]
 //! env-tool bench [--threads 1] [--steps 3000] [--mode random|demo]
 //! env-tool record --task stack [--seed 0] [--out runs/demo]   # for scripts/render-demo.py
+//! env-tool trace --task reach [--reward NAME] [--seed 0] [--steps N] [--noise 0.3] --out FILE.json
 //! ```
 
 use std::process::ExitCode;
@@ -45,11 +46,15 @@ fn run(args: &[String]) -> Result<(), BoxError> {
         "demo" => demo(args),
         "bench" => bench(args),
         "record" => record(args),
+        "trace" => trace(args),
         _ => {
             println!("usage: env-tool demo --task TASK [--episodes N] [--seed S] [--verbose]");
             println!("       env-tool bench [--threads N] [--steps N] [--mode random|demo]");
             println!(
                 "       env-tool record --task TASK [--seed S] [--out DIR]   (scene.xml + qpos.csv of a demo episode)"
+            );
+            println!(
+                "       env-tool trace --task TASK [--reward NAME] [--seed S] [--steps N] [--noise X] --out FILE   (JSON trace for the Python package's test)"
             );
             Ok(())
         }
@@ -257,4 +262,62 @@ fn bench_worker(
         }
     }
     Ok((steps, in_step))
+}
+
+/// Writes one episode as JSON for `tests/test_dexstack_trace.py`: the scripted demonstrator's action
+/// at every step, the action applied (that plus uniform noise of amplitude `--noise`, from a fixed
+/// generator, so some components leave [-1, 1] and are clipped), and the observation, reward,
+/// success and predicates after it. Floats are written as their IEEE-754 bits (`u32`), so the
+/// comparison on the Python side is bit for bit.
+fn trace(args: &[String]) -> Result<(), BoxError> {
+    let task: Task = flag(args, "--task", Task::Reach)?;
+    let reward_name: String = flag(args, "--reward", String::new())?;
+    let seed: u64 = flag(args, "--seed", 0)?;
+    let noise: f64 = flag(args, "--noise", 0.3)?;
+    let out: String = flag(args, "--out", String::new())?;
+    if out.is_empty() {
+        return Err("trace needs --out FILE".into());
+    }
+    let mut config = EnvConfig::new(task);
+    if !reward_name.is_empty() {
+        let reward: dex_trainer::env::Reward =
+            serde_json::from_value(serde_json::Value::String(reward_name.clone()))
+                .map_err(|e| format!("--reward {reward_name}: {e}"))?;
+        config = config.with_reward(reward);
+    }
+    let steps: u32 = flag(args, "--steps", config.episode_steps)?;
+    let scene = Scene::load()?;
+    let mut env = JacoEnv::new(&scene, config);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let first = env.reset(seed)?;
+    let mut demo = Demonstrator::new(task);
+    let mut rng = dex_trainer::env::rng::SeedRng::new(seed ^ 0x7124_CE00);
+    let mut records = Vec::new();
+    for _ in 0..steps {
+        let planned = demo.act(&env);
+        let action: [f32; 9] =
+            std::array::from_fn(|i| planned[i] + rng.uniform(-noise, noise) as f32);
+        let o = env.step(&action)?;
+        records.push(serde_json::json!({
+            "demo": bits(&planned),
+            "action": bits(&action),
+            "obs": bits(&o.observation),
+            "reward": o.reward.to_bits(),
+            "done": o.done,
+            "success": o.success,
+            "reach": o.predicates.reach,
+            "grasp": o.predicates.grasp,
+            "stack": o.predicates.stack,
+        }));
+    }
+    let doc = serde_json::json!({
+        "task": task,
+        "reward": config.reward,
+        "seed": seed,
+        "reset": bits(&first),
+        "steps": records,
+    });
+    std::fs::write(&out, serde_json::to_string(&doc)?)?;
+    println!("wrote {steps} steps of {task:?} from seed {seed} to {out}");
+    Ok(())
 }

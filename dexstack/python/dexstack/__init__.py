@@ -1,0 +1,58 @@
+"""The Jaco stacking tasks of dexterous-stack as Gymnasium environments.
+
+Importing the package registers four Gymnasium 1.x ids::
+
+    dexstack/Reach-v0  dexstack/Grasp-v0  dexstack/StackInHand-v0  dexstack/Stack-v0
+
+``gymnasium.make(id, reward=..., start=..., episode_steps=..., in_hand_probability=...)`` gives a
+:class:`JacoEnv`; ``gymnasium.make_vec(id, num_envs=N)`` a :class:`VectorEnv` (N environments
+stepped on Rust threads with the GIL released). The simulation is the Rust ``JacoEnv`` itself
+(MuJoCo 3.17.0), so the same seed and the same actions give the same bits as in Rust.
+:class:`Demonstrator` is the scripted demonstrator, :class:`Policy` a ``.dxpl`` policy file run
+through the runtime's evaluator. See docs/python.md.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+
+from . import _core
+from ._core import episode_seed, reward_names
+from .envs import TASKS, InvalidAction, JacoEnv, VectorEnv
+from .agents import Demonstrator, Policy
+
+__all__ = [
+    "TASKS",
+    "JacoEnv",
+    "VectorEnv",
+    "InvalidAction",
+    "Demonstrator",
+    "Policy",
+    "episode_seed",
+    "reward_names",
+    "register_envs",
+]
+
+__version__ = "0.1.0"
+
+
+def register_envs() -> None:
+    """Registers ``dexstack/<Task>-v0`` for the four tasks (done on import; idempotent)."""
+    for name, task in TASKS.items():
+        env_id = f"dexstack/{name}-v0"
+        if env_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=env_id,
+            entry_point="dexstack.envs:JacoEnv",
+            vector_entry_point="dexstack.envs:VectorEnv",
+            kwargs={"task": task},
+            # The environment truncates at its own time limit (the `episode_steps` option), so no
+            # TimeLimit wrapper is added, and it is deterministic given the seed.
+            max_episode_steps=None,
+            nondeterministic=False,
+        )
+
+
+register_envs()
+del _core
