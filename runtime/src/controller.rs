@@ -388,6 +388,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.frames_this_cycle = false;
         self.evaluations_this_cycle = 0;
 
+        let heartbeats = self.heartbeat_counter;
         match self.state {
             State::Boot => self.boot_up(&mut out),
             State::Operational => {
@@ -401,7 +402,10 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             }
         }
         self.cycles_since_heartbeat += 1;
-        if self.cycles_since_heartbeat >= self.cfg.heartbeat_cycles {
+        // A cycle whose state change already sent a heartbeat sends no second one (with
+        // `heartbeat_cycles` 0 or 1 it would, and a watchdog cycle would need 7 frames).
+        let sent = self.heartbeat_counter != heartbeats;
+        if !sent && self.cycles_since_heartbeat >= self.cfg.heartbeat_cycles {
             self.push_heartbeat(&mut out);
         }
         if self.announce {

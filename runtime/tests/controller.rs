@@ -344,6 +344,50 @@ fn heartbeat_period_and_missed_cycles() {
     assert_eq!(c.diagnostics().cycles, 41);
 }
 
+/// Found by `fuzz/fuzz_targets/controller_structured.rs`: with a heartbeat every cycle, the cycle
+/// whose watchdog safe-stopped sent the state-change heartbeat and then the scheduled one, 7 frames
+/// where the `Outbox` promises at most 6 (its capacity is 8, past which frames are lost silently).
+#[test]
+fn a_cycle_sends_one_heartbeat_even_with_a_heartbeat_every_cycle() {
+    for heartbeat_cycles in [0, 1] {
+        let clock = MockClock::new(0);
+        let file = policy();
+        let view = PolicyView::decode(file.as_bytes()).unwrap();
+        let mut c = Controller::<64>::new(ControllerConfig {
+            heartbeat_cycles,
+            ..ControllerConfig::default()
+        });
+        c.poll(&clock);
+        c.load_policy(&view).unwrap();
+        // Every cycle has its heartbeat.
+        for tick in 1..=3u64 {
+            clock.set(tick * PERIOD);
+            let out = c.poll(&clock);
+            assert_eq!(heartbeat(&out).map(|h| h[2]), Some(1), "cycle {tick}");
+        }
+        c.on_frame(&nmt_frame(NmtCommand::Start, NODE), &clock);
+        assert_eq!(c.state(), State::Operational);
+        clock.set(8 * PERIOD);
+        let out = c.poll(&clock);
+        assert_eq!(c.state(), State::SafeStop);
+        assert_eq!(emcy_code(&out), Some(0x8250));
+        let beats = out
+            .iter()
+            .filter(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))
+            .count();
+        assert_eq!(
+            beats,
+            1,
+            "heartbeat_cycles {heartbeat_cycles}: {:?}",
+            ids(&out)
+        );
+        assert!(out.len() <= 6, "{} frames", out.len());
+        // The next cycle has its heartbeat again.
+        clock.set(9 * PERIOD);
+        assert_eq!(heartbeat(&c.poll(&clock)).map(|h| h[2]), Some(3));
+    }
+}
+
 fn emcy(out: &Outbox) -> Vec<&CanFrame> {
     out.iter()
         .filter(|f| f.standard_id() == Some(EMCY_BASE_ID + u16::from(NODE)))
