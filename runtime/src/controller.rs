@@ -336,9 +336,8 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         if self.state == State::Operational {
             return Err(SlotError::Operational);
         }
-        let (net, info) = slots.bind_active(|view, file| {
-            Ok((self.bind_slot(view, file)?, policy_info_of(view)))
-        })?;
+        let (net, info) = slots
+            .bind_active(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))?;
         self.set_slot_policy(net, info);
         Ok(())
     }
@@ -363,8 +362,8 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         if self.state == State::Operational {
             return Err(SlotError::Operational);
         }
-        let (net, info) =
-            slots.roll_back(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))?;
+        let (net, info) = slots
+            .roll_back(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))?;
         self.set_slot_policy(net, info);
         Ok(())
     }
@@ -403,9 +402,9 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             Request::Command(cmd) => {
                 let status = match cmd {
                     SlotCommand::Verify => match end_crc(data) {
-                        Some(crc) => match slots.end(crc, |view, file| {
-                            self.bind_slot(view, file).map(|_| ())
-                        }) {
+                        Some(crc) => match slots
+                            .end(crc, |view, file| self.bind_slot(view, file).map(|_| ()))
+                        {
                             Ok(()) => FlashStatus::Ok,
                             Err(s) => s,
                         },

@@ -55,7 +55,9 @@ impl fmt::Display for EvalError {
             EvalError::NonFiniteAction { index } => {
                 write!(f, "network output {index} is not finite")
             }
-            EvalError::PolicyBytes => f.write_str("the policy bytes do not hold the network's values"),
+            EvalError::PolicyBytes => {
+                f.write_str("the policy bytes do not hold the network's values")
+            }
         }
     }
 }

@@ -535,7 +535,8 @@ impl<'r> PolicySlots<'r> {
     }
 
     fn next_generation(&self) -> u32 {
-        self.active().map_or(1, |f| f.generation.wrapping_add(1).max(1))
+        self.active()
+            .map_or(1, |f| f.generation.wrapping_add(1).max(1))
     }
 
     /// Handles one flash request's data bytes (the frame on `0x600 + node`). Requests that need
@@ -568,7 +569,9 @@ impl<'r> PolicySlots<'r> {
                 return Request::Respond(ResponseBytes::new(&[0x82, status as u8, seq]));
             }
             0x03 => match (&self.transfer, data.get(1..5)) {
-                (Transfer::Receiving { .. }, Some(_)) => return Request::Command(SlotCommand::Verify),
+                (Transfer::Receiving { .. }, Some(_)) => {
+                    return Request::Command(SlotCommand::Verify);
+                }
                 (Transfer::Receiving { .. }, None) => {
                     self.transfer = Transfer::Idle;
                     FlashStatus::Format
