@@ -284,6 +284,13 @@ impl<'r> PolicySlots<'r> {
         })
     }
 
+    /// Gives the regions back, as a reset would leave them (the transfer state and the trial are
+    /// RAM state and gone); [`PolicySlots::mount`] them again to continue.
+    pub fn into_regions(self) -> (&'r mut [u8], &'r mut [u8]) {
+        let [a, b] = self.regions;
+        (a, b)
+    }
+
     /// Largest policy file a slot takes.
     pub fn capacity(&self) -> usize {
         self.regions[0].len().min(self.regions[1].len()) - SLOT_HEADER_BYTES
