@@ -149,11 +149,11 @@ pub fn run_controller_node(
     let mut slots = PolicySlots::mount(a, b).map_err(NodeError::Slots)?;
     let mut controller = Controller::<'static, NODE_WIDTH>::new(cfg);
     let mut load_error = None;
-    if let Some(p) = policy {
-        if let Err(e) = install(&mut controller, &mut slots, p) {
-            eprintln!("hil-sim: controller node refused the policy: {e}");
-            load_error = Some(e);
-        }
+    if let Some(p) = policy
+        && let Err(e) = install(&mut controller, &mut slots, p)
+    {
+        eprintln!("hil-sim: controller node refused the policy: {e}");
+        load_error = Some(e);
     }
     let load = match (&load_error, policy) {
         (Some(_), _) => "refused",

@@ -47,9 +47,14 @@ fn the_golden_flash_recording_is_what_a_flash_over_the_bus_sends_and_receives() 
     })
     .unwrap();
     let stop = Arc::new(AtomicBool::new(false));
-    let node =
-        spawn_controller_node(bus.addr(), Some(old), TimeMode::Lockstep, stop.clone(), None)
-            .unwrap();
+    let node = spawn_controller_node(
+        bus.addr(),
+        Some(old),
+        TimeMode::Lockstep,
+        stop.clone(),
+        None,
+    )
+    .unwrap();
     let mut tool = BusClient::connect(bus.addr(), "vcan0").unwrap();
     let mut requests = flash_frames(NODE, &new, None);
     requests.push(flash_command(NODE, 0x04).unwrap());

@@ -78,7 +78,7 @@ impl NodePort for Script {
         }
         let d = frame.data();
         let ok = match d[0] {
-            0x81 | 0x82 | 0x83 => d[1] == 0,
+            0x81..=0x83 => d[1] == 0,
             0x84 => {
                 self.activated += usize::from(d[1] == 0);
                 d[1] == 0

@@ -261,7 +261,7 @@ impl<'r> PolicySlots<'r> {
     /// smaller one bounds the file size ([`PolicySlots::capacity`]).
     pub fn mount(a: &'r mut [u8], b: &'r mut [u8]) -> Result<Self, SlotError> {
         for r in [&*a, &*b] {
-            if r.as_ptr() as usize % SLOT_ALIGN != 0 {
+            if !(r.as_ptr() as usize).is_multiple_of(SLOT_ALIGN) {
                 return Err(SlotError::Misaligned);
             }
             if r.len() <= SLOT_HEADER_BYTES {
@@ -413,7 +413,7 @@ impl<'r> PolicySlots<'r> {
         *written = end;
         *next_seq = next_seq.wrapping_add(1);
         *segments = segments.saturating_add(1);
-        Ok(*segments % BLOCK_SEGMENTS == 0 || end == *size)
+        Ok(segments.is_multiple_of(BLOCK_SEGMENTS) || end == *size)
     }
 
     /// Ends the transfer: checks the length and `crc` (CRC-32 of the whole file), decodes the file

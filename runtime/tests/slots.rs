@@ -238,7 +238,7 @@ fn transfer_activate_roll_back_and_the_actions_of_each_policy() {
     assert_eq!(slots.active_crc(), CRC32.checksum(&new));
 
     // What a reset finds: the newest committed activation.
-    drop(slots);
+    let _ = slots.into_regions(); // a reset: the RAM state is gone
     let slots = PolicySlots::mount(bytes(&mut ra), bytes(&mut rb)).unwrap();
     assert_eq!(slots.active_crc(), CRC32.checksum(&new));
     assert_eq!(
@@ -357,7 +357,7 @@ fn a_policy_whose_first_evaluation_faults_is_rolled_back_with_emcy_0xff07() {
     let got = run(&mut c, &mut slots, 4, 1_000_000);
     assert_eq!(bits(&got), bits(&reference(&old, 4)));
     // And a reset mounts the old one, never the faulty one.
-    drop(slots);
+    let _ = slots.into_regions(); // a reset: the RAM state is gone
     let slots = PolicySlots::mount(bytes(&mut ra), bytes(&mut rb)).unwrap();
     assert_eq!(slots.active_crc(), CRC32.checksum(&old));
     assert_eq!(slots.previous(), None);
@@ -369,7 +369,7 @@ fn a_fault_after_the_first_evaluation_is_the_usual_fault() {
     let faulty = jaco_policy_faulting(8, 4).unwrap();
     let (mut ra, mut rb) = regions();
     let (slots, _) = provisioned(bytes(&mut ra), bytes(&mut rb), &faulty);
-    drop(slots);
+    let _ = slots.into_regions(); // a reset: the RAM state is gone
     let mut slots = PolicySlots::mount(bytes(&mut ra), bytes(&mut rb)).unwrap();
     let mut c = Ctl::new(ControllerConfig::default());
     c.attach_slots(&slots).unwrap();
