@@ -8,6 +8,8 @@
 #   FIRMWARE_BLESS=1 scripts/firmware-check.sh   # rewrite firmware/budget.txt from this run
 #   FIRMWARE_QUICK=1 scripts/firmware-check.sh   # case 1's f32 golden only (scripts/test.sh runs it
 #                                                # with another CARGO_TARGET_DIR: the build paths)
+#   FIRMWARE_SLOTS_ONLY=1 scripts/firmware-check.sh  # case 1's f32 golden, then case 8 (A/B slots);
+#                                                # with FIRMWARE_BLESS=1 it re-blesses the slots_* budgets only
 #
 # Build output goes wherever cargo puts it for the firmware workspace (`cargo metadata`: honours
 # CARGO_TARGET_DIR and build.target-dir; default firmware/target); scratch files in its
@@ -122,7 +124,7 @@ same_as_host() {
     local n
     n=$(grep -c '^[ACQ] ' "$1" || true)
     [ "$n" -gt 0 ] || die "$3: no action lines from QEMU"
-    diff <(grep -E '^(L|J|A|C|P|Q|R|S|F) ' "$2") <(grep -E '^(L|J|A|C|P|Q|R|S|F) ' "$1") >"$WORK/diff.txt" ||
+    diff <(grep -E '^(L|J|A|C|P|Q|R|V|F) ' "$2") <(grep -E '^(L|J|A|C|P|Q|R|V|F) ' "$1") >"$WORK/diff.txt" ||
         { head -20 "$WORK/diff.txt" >&2; die "$3: QEMU output differs from the host twin"; }
     echo "   $3: $n action lines bit-identical to the host twin"
 }
@@ -184,40 +186,8 @@ sys.exit(1 if max(worst) > 0.01 else 0)
 EOF
 }
 
-# --- 1. golden policy ----------------------------------------------------------------------------
-GOLDEN="$ROOT/runtime/tests/golden"
-step "1/8 golden 44-64-64-9 policy on mps2-an386"
-build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
-expect_ok "$rc" "$WORK/golden.log" golden
-check_golden "$WORK/golden.log" "$GOLDEN/actions_64.f32" golden
-host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
-same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
-if [ "${FIRMWARE_QUICK:-0}" = 1 ]; then
-    echo "firmware-check: OK (quick: the f32 golden of case 1 only)"
-    exit 0
-fi
-build_fw "$WORK/golden_int8.elf" "$GOLDEN/jaco_64_int8.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/golden_int8.elf" mps2-an386 "$WORK/golden_int8.log")
-expect_ok "$rc" "$WORK/golden_int8.log" "golden int8"
-check_golden "$WORK/golden_int8.log" "$GOLDEN/actions_64_int8.f32" "golden int8"
-host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
-same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
-
-# --- 2. default-size policy, budget and footprint -------------------------------------------------
-step "2/8 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
-(cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
-"$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
-    die "make-policy failed"
-run_policy p256 "$WORK/jaco_256.dxpl" "44-256-256-9"
-grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
-
 BUDGET="$FW/budget.txt"
-mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] || die "no instruction counts in the QEMU output"
-policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
-trace_bytes=$(stat -c %s "$GOLDEN/obs_trace.f32")
+trace_bytes=$(stat -c %s "$ROOT/runtime/tests/golden/obs_trace.f32")
 # footprint ELF POLICY_BYTES PREFIX: prints the sections; sets code_flash (flash without the embedded
 # policy file and trace: what the firmware itself costs) and static_ram.
 footprint() {
@@ -243,6 +213,91 @@ peak_stack() {
     [ -n "$used" ] || die "no peak stack figure in $1"
     echo "$used"
 }
+# check_budget NAME VALUE UNIT: VALUE at most the budget + TOLERANCE_PCT.
+check_budget() {
+    local name=$1 got=$2 unit=$3 budget
+    budget=$(awk -v k="$name" '$1 == k { print $2 }' "$BUDGET")
+    [ -n "$budget" ] || die "budget file has no $name"
+    [[ "$budget" =~ ^[0-9]+$ ]] || die "budget $name is '$budget', not a number (FIRMWARE_BLESS=1 writes one)"
+    local limit=$((budget + budget * TOLERANCE_PCT / 100))
+    [ "$got" -le "$limit" ] ||
+        die "$name: $got $unit, budget $budget (+${TOLERANCE_PCT}% = $limit): a regression"
+    echo "   $name: $got $unit (budget $budget, limit $limit) ok"
+}
+# --- 8. A/B policy slots (a function: FIRMWARE_SLOTS_ONLY=1 runs it alone, after case 1) --------
+case_slots() {
+    step "8/8 A/B policy slots: the recorded flash of the int8 golden into the inactive slot, cut and corrupt transfers"
+    FLASH_REC="$GOLDEN/flash_int8.frames"
+    build_fw "$WORK/slots.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features slots
+    rc=$(run_qemu "$WORK/slots.elf" mps2-an386 "$WORK/slots.log")
+    expect_ok "$rc" "$WORK/slots.log" slots
+    grep '^F ' "$WORK/slots.log" | sed 's/^/   /'
+    check_golden "$WORK/slots.log" "$GOLDEN/actions_64.f32" "slots before the swap (evaluator over the slot)" P
+    check_golden "$WORK/slots.log" "$GOLDEN/actions_64_int8.f32" "slots after the swap (evaluator over the slot)" Q
+    diff <(sed -n 's/^C \([^|]*\) |.*/\1/p' "$WORK/slots.log" | sed 's/ *$//') \
+        <(sed -n 's/^R //p' "$WORK/slots.log" | sed 's/ *$//') >/dev/null ||
+        die "slots: the controller over the slot differs from the controller over the embedded file"
+    echo "   slots: controller over the slot bit-identical to the controller over the embedded file"
+    host_ref "$WORK/slots.host" "$GOLDEN/jaco_64.dxpl" --features slots
+    same_as_host "$WORK/slots.log" "$WORK/slots.host" slots
+    grep -E '^(I|S) ' "$WORK/slots.log" | grep -E 'slot|flash|peak' | sed 's/^/   /'
+    slots_ctrl=$(sed -n 's/^I slot_controller .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
+    slots_req=$(sed -n 's/^I flash_request .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
+    [ -n "$slots_ctrl" ] && [ -n "$slots_req" ] || die "slots: no instruction counts"
+    footprint "$WORK/slots.elf" "$(stat -c %s "$GOLDEN/jaco_64.dxpl")" "slots "
+    # The slot image embeds the recording too: count it with the data, not the code.
+    code_flash=$((code_flash - $(stat -c %s "$FLASH_REC")))
+    echo "   slots: code flash without the policy, trace and recording: $code_flash B"
+    slots_stack=$(peak_stack "$WORK/slots.log")
+    if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
+        sed -i "s/^slots_controller_step .*/slots_controller_step $slots_ctrl/; s/^slots_flash_request .*/slots_flash_request $slots_req/;
+            s/^slots_flash_code_bytes .*/slots_flash_code_bytes $code_flash/; s/^slots_static_ram_bytes .*/slots_static_ram_bytes $static_ram/;
+            s/^slots_stack_bytes .*/slots_stack_bytes $slots_stack/" "$BUDGET"
+    fi
+    check_budget slots_controller_step "$slots_ctrl" "instructions per step"
+    check_budget slots_flash_request "$slots_req" "instructions per flash request (worst: verification)"
+    check_budget slots_flash_code_bytes "$code_flash" "bytes of code flash"
+    check_budget slots_static_ram_bytes "$static_ram" "bytes of static RAM (two 32 KiB slots)"
+    check_budget slots_stack_bytes "$slots_stack" "bytes of peak stack"
+}
+
+# --- 1. golden policy ----------------------------------------------------------------------------
+GOLDEN="$ROOT/runtime/tests/golden"
+step "1/8 golden 44-64-64-9 policy on mps2-an386"
+build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
+expect_ok "$rc" "$WORK/golden.log" golden
+check_golden "$WORK/golden.log" "$GOLDEN/actions_64.f32" golden
+host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
+same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
+if [ "${FIRMWARE_QUICK:-0}" = 1 ]; then
+    echo "firmware-check: OK (quick: the f32 golden of case 1 only)"
+    exit 0
+fi
+if [ "${FIRMWARE_SLOTS_ONLY:-0}" = 1 ]; then
+    case_slots
+    echo "firmware-check: OK (slots only: case 1's f32 golden and case 8)"
+    exit 0
+fi
+build_fw "$WORK/golden_int8.elf" "$GOLDEN/jaco_64_int8.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden_int8.elf" mps2-an386 "$WORK/golden_int8.log")
+expect_ok "$rc" "$WORK/golden_int8.log" "golden int8"
+check_golden "$WORK/golden_int8.log" "$GOLDEN/actions_64_int8.f32" "golden int8"
+host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
+same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
+
+# --- 2. default-size policy, budget and footprint -------------------------------------------------
+step "2/8 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
+(cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
+"$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
+    die "make-policy failed"
+run_policy p256 "$WORK/jaco_256.dxpl" "44-256-256-9"
+grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
+
+mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] || die "no instruction counts in the QEMU output"
+policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
 footprint "$WORK/p256.elf" "$policy_bytes" ""
 stack_max=$(peak_stack "$WORK/p256.log")
 
@@ -274,17 +329,6 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
     echo "   blessed $BUDGET"
 fi
 [ -f "$BUDGET" ] || die "no budget file $BUDGET (FIRMWARE_BLESS=1 writes one)"
-# check_budget NAME VALUE UNIT: VALUE at most the budget + TOLERANCE_PCT.
-check_budget() {
-    local name=$1 got=$2 unit=$3 budget
-    budget=$(awk -v k="$name" '$1 == k { print $2 }' "$BUDGET")
-    [ -n "$budget" ] || die "budget file has no $name"
-    [[ "$budget" =~ ^[0-9]+$ ]] || die "budget $name is '$budget', not a number (FIRMWARE_BLESS=1 writes one)"
-    local limit=$((budget + budget * TOLERANCE_PCT / 100))
-    [ "$got" -le "$limit" ] ||
-        die "$name: $got $unit, budget $budget (+${TOLERANCE_PCT}% = $limit): a regression"
-    echo "   $name: $got $unit (budget $budget, limit $limit) ok"
-}
 check_budget mlp_step "$mlp_max" "instructions per step"
 check_budget controller_step "$ctrl_max" "instructions per step"
 check_budget flash_code_bytes "$code_flash" "bytes of code flash"
@@ -361,39 +405,6 @@ for name in trained trained_int8; do
 done
 check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"
 
-# --- 8. A/B policy slots ---------------------------------------------------------------------------
-step "8/8 A/B policy slots: the recorded flash of the int8 golden into the inactive slot, cut and corrupt transfers"
-FLASH_REC="$GOLDEN/flash_int8.frames"
-build_fw "$WORK/slots.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features slots
-rc=$(run_qemu "$WORK/slots.elf" mps2-an386 "$WORK/slots.log")
-expect_ok "$rc" "$WORK/slots.log" slots
-grep '^F ' "$WORK/slots.log" | sed 's/^/   /'
-check_golden "$WORK/slots.log" "$GOLDEN/actions_64.f32" "slots before the swap (evaluator over the slot)" P
-check_golden "$WORK/slots.log" "$GOLDEN/actions_64_int8.f32" "slots after the swap (evaluator over the slot)" Q
-diff <(sed -n 's/^C \([^|]*\) |.*/\1/p' "$WORK/slots.log" | sed 's/ *$//') \
-    <(sed -n 's/^R //p' "$WORK/slots.log" | sed 's/ *$//') >/dev/null ||
-    die "slots: the controller over the slot differs from the controller over the embedded file"
-echo "   slots: controller over the slot bit-identical to the controller over the embedded file"
-host_ref "$WORK/slots.host" "$GOLDEN/jaco_64.dxpl" --features slots
-same_as_host "$WORK/slots.log" "$WORK/slots.host" slots
-grep -E '^(I|S) ' "$WORK/slots.log" | grep -E 'slot|flash|peak' | sed 's/^/   /'
-slots_ctrl=$(sed -n 's/^I slot_controller .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
-slots_req=$(sed -n 's/^I flash_request .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
-[ -n "$slots_ctrl" ] && [ -n "$slots_req" ] || die "slots: no instruction counts"
-footprint "$WORK/slots.elf" "$(stat -c %s "$GOLDEN/jaco_64.dxpl")" "slots "
-# The slot image embeds the recording too: count it with the data, not the code.
-code_flash=$((code_flash - $(stat -c %s "$FLASH_REC")))
-echo "   slots: code flash without the policy, trace and recording: $code_flash B"
-slots_stack=$(peak_stack "$WORK/slots.log")
-if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
-    sed -i "s/^slots_controller_step .*/slots_controller_step $slots_ctrl/; s/^slots_flash_request .*/slots_flash_request $slots_req/;
-        s/^slots_flash_code_bytes .*/slots_flash_code_bytes $code_flash/; s/^slots_static_ram_bytes .*/slots_static_ram_bytes $static_ram/;
-        s/^slots_stack_bytes .*/slots_stack_bytes $slots_stack/" "$BUDGET"
-fi
-check_budget slots_controller_step "$slots_ctrl" "instructions per step"
-check_budget slots_flash_request "$slots_req" "instructions per flash request (worst: verification)"
-check_budget slots_flash_code_bytes "$code_flash" "bytes of code flash"
-check_budget slots_static_ram_bytes "$static_ram" "bytes of static RAM (two 32 KiB slots)"
-check_budget slots_stack_bytes "$slots_stack" "bytes of peak stack"
+case_slots
 
 echo "firmware-check: OK"

@@ -16,7 +16,7 @@
 //! 3. with feature `slots`, the A/B policy slots ([`slots::replay_slots`]): the embedded policy in
 //!    one of two static slots, the recorded flash transfer of another file (`DEX_FLASH`, frames of
 //!    a real `hil-sim` flash) fed to the controller, which writes the inactive slot and activates
-//!    it; the trace replayed before and after the swap (`P`/`R` and `Q`/`S` lines), and a transfer
+//!    it; the trace replayed before and after the swap (`P`/`R` and `Q`/`V` lines), and a transfer
 //!    cut in the middle (then a reset) and one with a corrupt segment, both leaving the old slot
 //!    active (`F` lines).
 //!
@@ -665,7 +665,7 @@ pub mod slots {
             &mut ctrl,
             &mut slots,
             steps,
-            ("Q", "S"),
+            ("Q", "V"),
             &mut summary.slot_controller,
             overhead,
         )?;
