@@ -295,8 +295,9 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             return Err(LoadError::Operational);
         }
         self.check_policy(view)?;
-        let mlp = Mlp::new(view)?;
-        self.install(Policy::File(mlp), view);
+        self.policy = Some(Policy::File(Mlp::new(view)?));
+        self.info = Some(policy_info_of(view));
+        self.announce = true;
         Ok(())
     }
 
@@ -321,12 +322,6 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     fn bind_slot(&self, view: &PolicyView<'_>, file: &[u8]) -> Result<Network<WIDTH>, LoadError> {
         self.check_policy(view)?;
         Ok(Network::new(view, file)?)
-    }
-
-    fn install(&mut self, policy: Policy<'p, WIDTH>, view: &PolicyView<'_>) {
-        self.policy = Some(policy);
-        self.info = Some(policy_info_of(view));
-        self.announce = true;
     }
 
     /// Takes the active slot of `slots` as the policy (at start-up, after [`PolicySlots::mount`]).
@@ -368,6 +363,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         Ok(())
     }
 
+    #[inline(always)]
     fn set_slot_policy(&mut self, net: Network<WIDTH>, info: PolicyInfo) {
         self.policy = Some(Policy::Slot(net));
         self.info = Some(info);

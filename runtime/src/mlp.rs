@@ -56,6 +56,15 @@ struct JointMap {
     max: f32,
 }
 
+/// What a network needs of its file besides the values: small, unlike the scratch buffers.
+#[derive(Debug, Clone)]
+struct Layout<const WIDTH: usize> {
+    layers: Vec<Layer, MAX_LAYERS>,
+    joints: Vec<JointMap, MAX_ACTIONS>,
+    obs_dim: usize,
+    clip: f32,
+}
+
 /// A loaded policy with its scratch buffers; `WIDTH` is the widest layer (or input) it accepts
 /// (for int8 layers the input width rounded up to a multiple of 4).
 ///
@@ -79,7 +88,7 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
         let values = view.values().as_slice()?;
         Ok(Mlp {
             values,
-            net: Network::build(view, values, 0)?,
+            net: Network::from_layout(Network::<WIDTH>::layout(view)?, values, 0),
         })
     }
 
@@ -151,11 +160,29 @@ impl<const WIDTH: usize> Network<WIDTH> {
         if !inside {
             return Err(FormatError::MalformedBody);
         }
-        Self::build(view, values, start)
+        Ok(Self::from_layout(Self::layout(view)?, values, start))
     }
 
-    /// The network of `view`, whose values (`values`) start `values_at` bytes into its file.
-    fn build(view: &PolicyView<'_>, values: &[f32], values_at: usize) -> Result<Self, FormatError> {
+    /// The network around `layout`, whose values (`values`) start `values_at` bytes into its file.
+    /// Built in the caller's return slot (`#[inline(always)]`): the scratch buffers are large, and
+    /// an intermediate copy would cost their size again in stack.
+    #[inline(always)]
+    fn from_layout(layout: Layout<WIDTH>, values: &[f32], values_at: usize) -> Self {
+        Network {
+            values_at,
+            values_len: values.len(),
+            xq: Int16Buffer([0; WIDTH]),
+            layers: layout.layers,
+            joints: layout.joints,
+            obs_dim: layout.obs_dim,
+            clip: layout.clip,
+            front: [0.0; WIDTH],
+            back: [0.0; WIDTH],
+        }
+    }
+
+    /// The layer layout and joint maps of `view`, checked against this capacity.
+    fn layout(view: &PolicyView<'_>) -> Result<Layout<WIDTH>, FormatError> {
         view.check_capacity(&Self::CAPACITY)?;
         let body = view.body();
         let mut layers = Vec::new();
@@ -203,16 +230,11 @@ impl<const WIDTH: usize> Network<WIDTH> {
                     max: MAX_ACTIONS,
                 })?;
         }
-        Ok(Network {
-            values_at,
-            values_len: values.len(),
-            xq: Int16Buffer([0; WIDTH]),
+        Ok(Layout {
             layers,
             joints,
             obs_dim: body.obs_dim(),
             clip: body.obs_clip,
-            front: [0.0; WIDTH],
-            back: [0.0; WIDTH],
         })
     }
 
