@@ -4,6 +4,8 @@
 //!   linker search path. Only for bare-metal targets: host builds of the library need none.
 //! - `DEX_POLICY`: the policy file to embed (default: the runtime's golden 44-64-64-9 policy).
 //! - `DEX_TRACE`: observations, little-endian f32, 44 per step (default: the golden trace).
+//! - `DEX_FLASH`: a recorded flash transfer for feature `slots` (default: the golden recording
+//!   `runtime/tests/golden/flash_int8.frames`, `hil-sim/tests/flash_golden.rs`).
 //!
 //! Relative paths are taken from this crate's folder (`firmware/`).
 
@@ -33,6 +35,13 @@ fn main() -> Result<(), Box<dyn Error>> {
         "DEX_TRACE",
         &golden.join("obs_trace.f32"),
         "trace.bin",
+    )?;
+    embed(
+        &manifest,
+        &out,
+        "DEX_FLASH",
+        &golden.join("flash_int8.frames"),
+        "flash.bin",
     )?;
 
     println!("cargo::rerun-if-env-changed=DEX_BOARD");

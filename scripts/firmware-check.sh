@@ -8,6 +8,8 @@
 #   FIRMWARE_BLESS=1 scripts/firmware-check.sh   # rewrite firmware/budget.txt from this run
 #   FIRMWARE_QUICK=1 scripts/firmware-check.sh   # case 1's f32 golden only (scripts/test.sh runs it
 #                                                # with another CARGO_TARGET_DIR: the build paths)
+#   FIRMWARE_SLOTS_ONLY=1 scripts/firmware-check.sh  # case 1's f32 golden, then case 8 (A/B slots);
+#                                                # with FIRMWARE_BLESS=1 it re-blesses the slots_* budgets only
 #
 # Build output goes wherever cargo puts it for the firmware workspace (`cargo metadata`: honours
 # CARGO_TARGET_DIR and build.target-dir; default firmware/target); scratch files in its
@@ -28,6 +30,13 @@
 #      the int8 golden.)
 #   7. a trained policy (trainer/tests/fixtures/reach_int8_seed0.dxpl, Reach, trained for int8) and its
 #      int8 twin (`policy quantise`): both equal to the host twin, int8 within 1% of the f32 actions.
+#   8. A/B policy slots (feature `slots`): the golden policy in one of two static slots, the recorded
+#      flash of the int8 golden policy (runtime/tests/golden/flash_int8.frames, the frames of a real
+#      hil-sim flash) fed to the controller: every response as recorded, the inactive slot written and
+#      activated; the trace before and after the swap bit-identical to actions_64.f32 and
+#      actions_64_int8.f32 (evaluator over the slot) and to the host twin (controller); a transfer cut
+#      in the middle (then a reset) and one with a corrupt segment leave the old slot active;
+#      instructions, RAM and stack of the slot image within budget.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -115,7 +124,7 @@ same_as_host() {
     local n
     n=$(grep -c '^[ACQ] ' "$1" || true)
     [ "$n" -gt 0 ] || die "$3: no action lines from QEMU"
-    diff <(grep -E '^(L|J|A|C) ' "$2") <(grep -E '^(L|J|A|C) ' "$1") >"$WORK/diff.txt" ||
+    diff <(grep -E '^(L|J|A|C|P|Q|R|V|F) ' "$2") <(grep -E '^(L|J|A|C|P|Q|R|V|F) ' "$1") >"$WORK/diff.txt" ||
         { head -20 "$WORK/diff.txt" >&2; die "$3: QEMU output differs from the host twin"; }
     echo "   $3: $n action lines bit-identical to the host twin"
 }
@@ -131,16 +140,17 @@ run_policy() {
     same_as_host "$WORK/$name.log" "$WORK/$name.host" "$what"
 }
 
-# check_golden LOG ACTIONS.f32 WHAT: every A line equals the golden actions bit for bit.
+# check_golden LOG ACTIONS.f32 WHAT [TAG]: every TAG line (default A) equals the golden actions bit
+# for bit.
 check_golden() {
-    python3 - "$1" "$2" "$3" <<'EOF' || die "$3: actions differ from $(basename "$2")"
+    python3 - "$1" "$2" "$3" "${4:-A}" <<'EOF' || die "$3: actions differ from $(basename "$2")"
 import struct, sys
-log, golden, what = sys.argv[1], sys.argv[2], sys.argv[3]
+log, golden, what, tag = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4]
 def canon(bits):  # NaN payloads differ between x86 and Arm: compare all NaNs as one
     return 0x7FC00000 if (bits & 0x7F800000) == 0x7F800000 and bits & 0x007FFFFF else bits
 raw = open(golden, "rb").read()
 want = [canon(b) for b in struct.unpack("<%dI" % (len(raw) // 4), raw)]
-rows = [l.split() for l in open(log) if l.startswith("A ")]
+rows = [l.split() for l in open(log) if l.startswith(tag + " ")]
 if len(rows) * 9 != len(want):
     sys.exit(f"{len(rows)} steps from QEMU, {len(want) // 9} in the golden file")
 bad = 0
@@ -176,40 +186,8 @@ sys.exit(1 if max(worst) > 0.01 else 0)
 EOF
 }
 
-# --- 1. golden policy ----------------------------------------------------------------------------
-GOLDEN="$ROOT/runtime/tests/golden"
-step "1/7 golden 44-64-64-9 policy on mps2-an386"
-build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
-expect_ok "$rc" "$WORK/golden.log" golden
-check_golden "$WORK/golden.log" "$GOLDEN/actions_64.f32" golden
-host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
-same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
-if [ "${FIRMWARE_QUICK:-0}" = 1 ]; then
-    echo "firmware-check: OK (quick: the f32 golden of case 1 only)"
-    exit 0
-fi
-build_fw "$WORK/golden_int8.elf" "$GOLDEN/jaco_64_int8.dxpl" mps2-an386
-rc=$(run_qemu "$WORK/golden_int8.elf" mps2-an386 "$WORK/golden_int8.log")
-expect_ok "$rc" "$WORK/golden_int8.log" "golden int8"
-check_golden "$WORK/golden_int8.log" "$GOLDEN/actions_64_int8.f32" "golden int8"
-host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
-same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
-
-# --- 2. default-size policy, budget and footprint -------------------------------------------------
-step "2/7 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
-(cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
-"$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
-    die "make-policy failed"
-run_policy p256 "$WORK/jaco_256.dxpl" "44-256-256-9"
-grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
-
 BUDGET="$FW/budget.txt"
-mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] || die "no instruction counts in the QEMU output"
-policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
-trace_bytes=$(stat -c %s "$GOLDEN/obs_trace.f32")
+trace_bytes=$(stat -c %s "$ROOT/runtime/tests/golden/obs_trace.f32")
 # footprint ELF POLICY_BYTES PREFIX: prints the sections; sets code_flash (flash without the embedded
 # policy file and trace: what the firmware itself costs) and static_ram.
 footprint() {
@@ -235,6 +213,91 @@ peak_stack() {
     [ -n "$used" ] || die "no peak stack figure in $1"
     echo "$used"
 }
+# check_budget NAME VALUE UNIT: VALUE at most the budget + TOLERANCE_PCT.
+check_budget() {
+    local name=$1 got=$2 unit=$3 budget
+    budget=$(awk -v k="$name" '$1 == k { print $2 }' "$BUDGET")
+    [ -n "$budget" ] || die "budget file has no $name"
+    [[ "$budget" =~ ^[0-9]+$ ]] || die "budget $name is '$budget', not a number (FIRMWARE_BLESS=1 writes one)"
+    local limit=$((budget + budget * TOLERANCE_PCT / 100))
+    [ "$got" -le "$limit" ] ||
+        die "$name: $got $unit, budget $budget (+${TOLERANCE_PCT}% = $limit): a regression"
+    echo "   $name: $got $unit (budget $budget, limit $limit) ok"
+}
+# --- 8. A/B policy slots (a function: FIRMWARE_SLOTS_ONLY=1 runs it alone, after case 1) --------
+case_slots() {
+    step "8/8 A/B policy slots: the recorded flash of the int8 golden into the inactive slot, cut and corrupt transfers"
+    FLASH_REC="$GOLDEN/flash_int8.frames"
+    build_fw "$WORK/slots.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features slots
+    rc=$(run_qemu "$WORK/slots.elf" mps2-an386 "$WORK/slots.log")
+    expect_ok "$rc" "$WORK/slots.log" slots
+    grep '^F ' "$WORK/slots.log" | sed 's/^/   /'
+    check_golden "$WORK/slots.log" "$GOLDEN/actions_64.f32" "slots before the swap (evaluator over the slot)" P
+    check_golden "$WORK/slots.log" "$GOLDEN/actions_64_int8.f32" "slots after the swap (evaluator over the slot)" Q
+    diff <(sed -n 's/^C \([^|]*\) |.*/\1/p' "$WORK/slots.log" | sed 's/ *$//') \
+        <(sed -n 's/^R //p' "$WORK/slots.log" | sed 's/ *$//') >/dev/null ||
+        die "slots: the controller over the slot differs from the controller over the embedded file"
+    echo "   slots: controller over the slot bit-identical to the controller over the embedded file"
+    host_ref "$WORK/slots.host" "$GOLDEN/jaco_64.dxpl" --features slots
+    same_as_host "$WORK/slots.log" "$WORK/slots.host" slots
+    grep -E '^(I|S) ' "$WORK/slots.log" | grep -E 'slot|flash|peak' | sed 's/^/   /'
+    slots_ctrl=$(sed -n 's/^I slot_controller .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
+    slots_req=$(sed -n 's/^I flash_request .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
+    [ -n "$slots_ctrl" ] && [ -n "$slots_req" ] || die "slots: no instruction counts"
+    footprint "$WORK/slots.elf" "$(stat -c %s "$GOLDEN/jaco_64.dxpl")" "slots "
+    # The slot image embeds the recording too: count it with the data, not the code.
+    code_flash=$((code_flash - $(stat -c %s "$FLASH_REC")))
+    echo "   slots: code flash without the policy, trace and recording: $code_flash B"
+    slots_stack=$(peak_stack "$WORK/slots.log")
+    if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
+        sed -i "s/^slots_controller_step .*/slots_controller_step $slots_ctrl/; s/^slots_flash_request .*/slots_flash_request $slots_req/;
+            s/^slots_flash_code_bytes .*/slots_flash_code_bytes $code_flash/; s/^slots_static_ram_bytes .*/slots_static_ram_bytes $static_ram/;
+            s/^slots_stack_bytes .*/slots_stack_bytes $slots_stack/" "$BUDGET"
+    fi
+    check_budget slots_controller_step "$slots_ctrl" "instructions per step"
+    check_budget slots_flash_request "$slots_req" "instructions per flash request (worst: verification)"
+    check_budget slots_flash_code_bytes "$code_flash" "bytes of code flash"
+    check_budget slots_static_ram_bytes "$static_ram" "bytes of static RAM (two 32 KiB slots)"
+    check_budget slots_stack_bytes "$slots_stack" "bytes of peak stack"
+}
+
+# --- 1. golden policy ----------------------------------------------------------------------------
+GOLDEN="$ROOT/runtime/tests/golden"
+step "1/8 golden 44-64-64-9 policy on mps2-an386"
+build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
+expect_ok "$rc" "$WORK/golden.log" golden
+check_golden "$WORK/golden.log" "$GOLDEN/actions_64.f32" golden
+host_ref "$WORK/golden.host" "$GOLDEN/jaco_64.dxpl"
+same_as_host "$WORK/golden.log" "$WORK/golden.host" golden
+if [ "${FIRMWARE_QUICK:-0}" = 1 ]; then
+    echo "firmware-check: OK (quick: the f32 golden of case 1 only)"
+    exit 0
+fi
+if [ "${FIRMWARE_SLOTS_ONLY:-0}" = 1 ]; then
+    case_slots
+    echo "firmware-check: OK (slots only: case 1's f32 golden and case 8)"
+    exit 0
+fi
+build_fw "$WORK/golden_int8.elf" "$GOLDEN/jaco_64_int8.dxpl" mps2-an386
+rc=$(run_qemu "$WORK/golden_int8.elf" mps2-an386 "$WORK/golden_int8.log")
+expect_ok "$rc" "$WORK/golden_int8.log" "golden int8"
+check_golden "$WORK/golden_int8.log" "$GOLDEN/actions_64_int8.f32" "golden int8"
+host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
+same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
+
+# --- 2. default-size policy, budget and footprint -------------------------------------------------
+step "2/8 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
+(cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
+"$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
+    die "make-policy failed"
+run_policy p256 "$WORK/jaco_256.dxpl" "44-256-256-9"
+grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
+
+mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] || die "no instruction counts in the QEMU output"
+policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
 footprint "$WORK/p256.elf" "$policy_bytes" ""
 stack_max=$(peak_stack "$WORK/p256.log")
 
@@ -247,7 +310,11 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "# .rodata + .data, less those two); static_ram_bytes: .data + .bss + .uninit; *stack_bytes: peak"
         echo "# stack (paint and measure, worst phase)."
         echo "# scripts/firmware-check.sh fails when a measurement exceeds its budget by more than ${TOLERANCE_PCT}%."
-        echo "# Re-bless only on purpose: FIRMWARE_BLESS=1 scripts/firmware-check.sh"
+        echo "# slots_*: the A/B slot image of case 8 (golden 44-64-64-9 policy, --features slots): one control"
+        echo "# period over a slot, the worst flash request (the end's verification of the 9.5 kB int8 file), code"
+        echo "# flash less policy, trace and flash recording, static RAM (two 32 KiB + 32 B slots), peak stack."
+        echo "# Re-bless only on purpose: FIRMWARE_BLESS=1 scripts/firmware-check.sh (the slots_* lines alone:"
+        echo "# FIRMWARE_BLESS=1 FIRMWARE_SLOTS_ONLY=1 scripts/firmware-check.sh)"
         echo "mlp_step $mlp_max"
         echo "controller_step $ctrl_max"
         echo "flash_code_bytes $code_flash"
@@ -257,21 +324,15 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "int8_controller_step BLESS_PENDING"
         echo "int8_flash_code_bytes BLESS_PENDING"
         echo "int8_stack_bytes BLESS_PENDING"
+        echo "slots_controller_step BLESS_PENDING"
+        echo "slots_flash_request BLESS_PENDING"
+        echo "slots_flash_code_bytes BLESS_PENDING"
+        echo "slots_static_ram_bytes BLESS_PENDING"
+        echo "slots_stack_bytes BLESS_PENDING"
     } >"$BUDGET"
     echo "   blessed $BUDGET"
 fi
 [ -f "$BUDGET" ] || die "no budget file $BUDGET (FIRMWARE_BLESS=1 writes one)"
-# check_budget NAME VALUE UNIT: VALUE at most the budget + TOLERANCE_PCT.
-check_budget() {
-    local name=$1 got=$2 unit=$3 budget
-    budget=$(awk -v k="$name" '$1 == k { print $2 }' "$BUDGET")
-    [ -n "$budget" ] || die "budget file has no $name"
-    [[ "$budget" =~ ^[0-9]+$ ]] || die "budget $name is '$budget', not a number (FIRMWARE_BLESS=1 writes one)"
-    local limit=$((budget + budget * TOLERANCE_PCT / 100))
-    [ "$got" -le "$limit" ] ||
-        die "$name: $got $unit, budget $budget (+${TOLERANCE_PCT}% = $limit): a regression"
-    echo "   $name: $got $unit (budget $budget, limit $limit) ok"
-}
 check_budget mlp_step "$mlp_max" "instructions per step"
 check_budget controller_step "$ctrl_max" "instructions per step"
 check_budget flash_code_bytes "$code_flash" "bytes of code flash"
@@ -279,7 +340,7 @@ check_budget static_ram_bytes "$static_ram" "bytes of static RAM"
 check_budget stack_bytes "$stack_max" "bytes of peak stack"
 
 # --- 3. second board ------------------------------------------------------------------------------
-step "3/7 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
+step "3/8 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
 build_fw "$WORK/nd.elf" "$WORK/jaco_256.dxpl" netduinoplus2
 rc=$(run_qemu "$WORK/nd.elf" netduinoplus2 "$WORK/nd.log")
 expect_ok "$rc" "$WORK/nd.log" netduinoplus2
@@ -292,7 +353,7 @@ if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
 fi
 
 # --- 4. corrupted policy: the fault state ---------------------------------------------------------
-step "4/7 corrupted policy file: fault state, non-zero exit, no hang"
+step "4/8 corrupted policy file: fault state, non-zero exit, no hang"
 python3 - "$GOLDEN/jaco_64.dxpl" "$WORK/corrupt.dxpl" <<'EOF'
 import sys
 b = bytearray(open(sys.argv[1], "rb").read())
@@ -307,7 +368,7 @@ grep -q '^[AC] ' "$WORK/corrupt.log" && die "corrupted policy: actions were prod
 echo "   $(grep '^FAULT' "$WORK/corrupt.log") (exit $rc)"
 
 # --- 5. HardFault -----------------------------------------------------------------------------------
-step "5/7 HardFault handler exits non-zero"
+step "5/8 HardFault handler exits non-zero"
 build_fw "$WORK/hardfault.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features hardfault-test
 rc=$(run_qemu "$WORK/hardfault.elf" mps2-an386 "$WORK/hardfault.log")
 [ "$rc" = 1 ] || die "hardfault test: exit status $rc, want 1 (124 = hang)"
@@ -315,7 +376,7 @@ grep -q '^FAULT hardfault' "$WORK/hardfault.log" || die "hardfault test: no FAUL
 echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
 
 # --- 6. int8 policy file ---------------------------------------------------------------------------
-step "6/7 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
+step "6/8 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
 "$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256_int8.dxpl" int8 2>/dev/null ||
     die "make-policy int8 failed"
 run_policy int8 "$WORK/jaco_256_int8.dxpl" int8
@@ -337,7 +398,7 @@ check_budget int8_flash_code_bytes "$code_flash" "bytes of code flash"
 check_budget int8_stack_bytes "$int8_stack_max" "bytes of peak stack"
 
 # --- 7. a trained policy and its int8 twin ---------------------------------------------------------
-step "7/7 trained Reach policy (trained for int8) and its int8 twin on mps2-an386"
+step "7/8 trained Reach policy (trained for int8) and its int8 twin on mps2-an386"
 TRAINED="$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl"
 (cd "$ROOT" && cargo run --quiet --locked -p dex-policy --features cli --bin policy -- \
     quantise "$TRAINED" "$WORK/trained_int8.dxpl" | sed 's/^/   /') || die "policy quantise failed"
@@ -347,5 +408,7 @@ for name in trained trained_int8; do
     grep -E '^(I|S peak) ' "$WORK/$name.log" | sed "s/^/   $name: /"
 done
 check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"
+
+case_slots
 
 echo "firmware-check: OK"

@@ -84,7 +84,11 @@ def policies(hil_sim, tmp_path_factory):
         [hil_sim, "make-policy", "--out", int8, "--hidden", "32,32", "--seed", "2", "--int8"],
         check=True,
     )
-    return {"good": good, "other": other, "mismatched": bad, "int8": int8}
+    faulting = d / "faulting.dxpl"
+    subprocess.run(
+        [hil_sim, "make-policy", "--out", faulting, "--hidden", "8", "--faulting"], check=True
+    )
+    return {"good": good, "other": other, "mismatched": bad, "int8": int8, "faulting": faulting}
 
 
 class Sim:

@@ -1,6 +1,8 @@
-"""Policy flashing over CAN (hil-sim/src/flash.rs): segmented transfer into the inactive slot,
-verification, activation only outside operational; an interrupted, corrupted or refused transfer
-leaves the active policy untouched."""
+"""Policy flashing over CAN (the runtime's A/B slots, runtime/src/slots.rs, in the hil-sim controller
+node): segmented transfer into the inactive slot, verification, activation only outside operational;
+an interrupted, corrupted or refused transfer leaves the active policy untouched; explicit roll-back
+to the previous policy, and the automatic one (EMCY 0xFF07) when a new policy's first evaluation
+faults."""
 import zlib
 
 import can
@@ -13,6 +15,8 @@ from conftest import (
 REQ, RESP = 0x600 + NODE, 0x580 + NODE
 POLICY_INFO = 0x290
 OK, SEQUENCE, CRC, FORMAT, REFUSED, OPERATIONAL_REFUSED, NO_IMAGE = 0, 1, 3, 4, 5, 6, 7
+NO_PREVIOUS = 10
+EMCY = 0x080 + NODE
 
 
 def request(bus, data, wait=True):
@@ -45,11 +49,12 @@ def status(bus):
     return r[1], int.from_bytes(r[2:6], "little")
 
 
-def runs_policy(bus):
-    """Start, one observation, an answer, stop again."""
+def runs_policy(bus, tx=None):
+    """Start, one observation, an answer, stop again. Pass the same `tx` to calls after the first
+    (its end-to-end counters run on; a fresh sender's first observation is dropped)."""
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
-    tx = PlantTx()
+    tx = PlantTx() if tx is None else tx
     tx.send(bus, observation(1))
     got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x282)
     nmt(bus, NMT_STOP)
@@ -166,3 +171,65 @@ def test_activation_is_refused_while_operational(sim, policies):
     wait_heartbeat(bus, STOPPED, 1.0)
     assert request(bus, [0x04]) == bytes([0x84, OK])
     assert status(bus) == (0, zlib.crc32(new))
+
+
+def flags(bus):
+    """Byte 6 of the status response: bit 0 a previous policy is kept, bit 1 on trial."""
+    r = request(bus, [0x06])
+    assert len(r) == 7, r
+    return r[6]
+
+
+def test_explicit_roll_back_to_the_previous_policy(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    old = policies["good"].read_bytes()
+    new = policies["other"].read_bytes()
+    wait_heartbeat(bus, PREOP, 2.0)
+    tx = PlantTx()
+    assert request(bus, [0x07]) == bytes([0x87, NO_PREVIOUS])  # only one policy so far
+    assert flash(bus, new) == OK
+    assert request(bus, [0x04]) == bytes([0x84, OK])
+    assert policy_info(bus) == header_info(new)
+    assert flags(bus) == 0b11  # previous kept, new one on trial
+    assert runs_policy(bus, tx)
+    assert flags(bus) == 0b01  # evaluated: no longer on trial
+    # Not while operational.
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    assert request(bus, [0x07]) == bytes([0x87, OPERATIONAL_REFUSED])
+    nmt(bus, NMT_STOP)
+    wait_heartbeat(bus, STOPPED, 1.0)
+    assert request(bus, [0x07]) == bytes([0x87, OK])
+    assert policy_info(bus) == header_info(old)
+    assert status(bus) == (0, zlib.crc32(old))
+    assert runs_policy(bus, tx)
+    assert request(bus, [0x07]) == bytes([0x87, OK])  # and forward again
+    assert status(bus) == (0, zlib.crc32(new))
+
+
+def test_a_policy_faulting_at_its_first_evaluation_is_rolled_back_with_emcy_0xff07(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    old = policies["good"].read_bytes()
+    bad = policies["faulting"].read_bytes()
+    wait_heartbeat(bus, PREOP, 2.0)
+    tx = PlantTx()
+    assert flash(bus, bad) == OK  # a valid file: it verifies
+    assert request(bus, [0x04]) == bytes([0x84, OK])
+    assert status(bus) == (0, zlib.crc32(bad))
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    tx.send(bus, observation(1))
+    got = [m for _, m in collect(bus, 0.3) if m.arbitration_id in (EMCY, 0x700 + NODE)]
+    emcy = [m for m in got if m.arbitration_id == EMCY]
+    assert len(emcy) == 1, got
+    d = DB.decode_message(EMCY, emcy[0].data, decode_choices=False)
+    assert (d["error_code"], d["fault_code"]) == (0xFF07, 7), d
+    hb = [m for m in got if m.arbitration_id == 0x700 + NODE]
+    assert hb and hb[0].data[0] == STOPPED and hb[0].data[3] == 7, hb
+    assert status(bus) == (0, zlib.crc32(old))  # the previous policy is active again
+    assert flags(bus) == 0  # the faulty one is not kept for a roll-back
+    assert s.diag()["state"] == "SafeStop" and s.diag()["fault"] == "PolicyRolledBack"
+    # NMT start runs the old policy (error reset first).
+    assert runs_policy(bus, tx)

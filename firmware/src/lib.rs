@@ -13,6 +13,13 @@
 //! exporter): the runtime's evaluator picks the kernel from the file, so both paths run int8 files
 //! exactly as a product controller would.
 //!
+//! 3. with feature `slots`, the A/B policy slots ([`slots::replay_slots`]): the embedded policy in
+//!    one of two static slots, the recorded flash transfer of another file (`DEX_FLASH`, frames of
+//!    a real `hil-sim` flash) fed to the controller, which writes the inactive slot and activates
+//!    it; the trace replayed before and after the swap (`P`/`R` and `Q`/`V` lines), and a transfer
+//!    cut in the middle (then a reset) and one with a corrupt segment, both leaving the old slot
+//!    active (`F` lines).
+//!
 //! Everything here is target-independent and `no_std`: the board binary (`src/main.rs`) and the
 //! host twin (`host/`) call the same [`run`] with their own [`Platform`], so their `A` and `C`
 //! lines must be identical. The board adds instruction counts per step (`I` lines) and the stack
@@ -87,6 +94,11 @@ pub enum Fault {
         /// The evaluator's error.
         error: EvalError,
     },
+    /// The slot phase went wrong (feature `slots`): what, as a short text.
+    Slots {
+        /// What failed.
+        what: &'static str,
+    },
     /// The controller left operational while replaying the trace.
     Controller {
         /// Step of the trace.
@@ -108,6 +120,7 @@ impl fmt::Display for Fault {
                 "trace of {len} bytes is not a whole, non-zero number of {OBS_DIM}-value observations"
             ),
             Fault::Eval { step, error } => write!(f, "step {step}: evaluator: {error}"),
+            Fault::Slots { what } => write!(f, "slots: {what}"),
             Fault::Controller { step, state, fault } => write!(
                 f,
                 "step {step}: controller in {state:?} with fault {fault:?} (code {})",
@@ -155,6 +168,11 @@ pub struct Summary {
     /// Instructions of one controller period: `poll` plus all observation frames, the last of
     /// which runs the evaluator and encodes the action frames.
     pub controller: Stats,
+    /// Feature `slots`: one controller period with the policy in a slot (`on_frame_slots`).
+    pub slot_controller: Stats,
+    /// Feature `slots`: one flash request frame (a segment; the end's verification and the
+    /// activation are the maxima).
+    pub flash_request: Stats,
 }
 
 /// Hex words of an f32 slice, for report lines.
@@ -250,6 +268,8 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
     // Two separate frames, so the stack peak is the larger of the two paths, not their sum.
     summary.mlp = replay_evaluator(p, &view, steps, overhead)?;
     summary.controller = replay_controller(p, &view, steps, overhead)?;
+    #[cfg(feature = "slots")]
+    slots::replay_slots(p, steps, overhead, &mut summary)?;
     Ok(summary)
 }
 
@@ -331,4 +351,339 @@ fn replay_controller(
     }
     p.stack_checkpoint("controller-steps");
     Ok(stats)
+}
+
+/// The A/B slot phase (feature `slots`).
+#[cfg(feature = "slots")]
+pub mod slots {
+    use core::cell::UnsafeCell;
+    use core::sync::atomic::{AtomicBool, Ordering};
+
+    use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
+    use dex_runtime::can::{CanFrame, E2eSender};
+    use dex_runtime::interface::ACT_DIM;
+    use dex_runtime::slots::{CRC32, SEGMENT_BYTES, SLOT_HEADER_BYTES};
+    use dex_runtime::{Controller, ControllerConfig, MockClock, Network, PolicySlots, State};
+    use embedded_can::Frame;
+
+    use super::{
+        Aligned, Bits, Fault, POLICY, Platform, Stats, Summary, TRACE, WIDTH, observation,
+    };
+
+    /// The recorded flash transfer (`DEX_FLASH`): 12 bytes a frame (direction, length, id u16 LE,
+    /// 8 data bytes); direction 0 is a request to the controller, 1 its recorded response.
+    pub static FLASH: &Aligned<[u8]> =
+        &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/flash.bin")));
+
+    /// Bytes of one slot region: header and 32 KiB of policy file.
+    pub const REGION: usize = SLOT_HEADER_BYTES + 32 * 1024;
+
+    /// One region, 8-byte aligned.
+    #[repr(C, align(8))]
+    struct Region(UnsafeCell<[u8; REGION]>);
+
+    /// The two static regions standing for two flash sectors (in `.bss`: erased at boot).
+    struct Regions([Region; 2]);
+
+    // SAFETY: the regions are only reached through `take`, which hands them out once.
+    unsafe impl Sync for Regions {}
+
+    static REGIONS: Regions = Regions([
+        Region(UnsafeCell::new([0; REGION])),
+        Region(UnsafeCell::new([0; REGION])),
+    ]);
+    static TAKEN: AtomicBool = AtomicBool::new(false);
+
+    /// Both regions, once per run.
+    fn take() -> Option<(&'static mut [u8], &'static mut [u8])> {
+        if TAKEN.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        let [a, b] = &REGIONS.0;
+        // SAFETY: `TAKEN` lets this run once, so these are the only references to the regions.
+        Some(unsafe { (&mut *a.0.get(), &mut *b.0.get()) })
+    }
+
+    /// Recorded frame `k`: (direction, frame).
+    fn recorded(k: usize) -> Option<(u8, CanFrame)> {
+        let r = FLASH.0.get(12 * k..12 * k + 12)?;
+        let len = usize::from(r[1]).min(8);
+        let frame = CanFrame::standard(u16::from_le_bytes([r[2], r[3]]), &r[4..4 + len])?;
+        Some((r[0], frame))
+    }
+
+    fn fail(what: &'static str) -> Fault {
+        Fault::Slots { what }
+    }
+
+    /// What feeding recorded requests did.
+    struct Fed {
+        /// The last response: command byte and status.
+        last: Option<(u8, u8)>,
+        /// Responses that differ from the recording.
+        mismatches: usize,
+    }
+
+    /// Feeds the recorded requests `0..until` (frames, in order) to the controller; `corrupt`
+    /// flips a bit in that request. Responses are compared with the recorded ones.
+    fn feed(
+        p: &mut impl Platform,
+        ctrl: &mut Controller<'static, WIDTH>,
+        slots: &mut PolicySlots<'_>,
+        until: usize,
+        corrupt: Option<usize>,
+        stats: &mut Stats,
+        overhead: u32,
+    ) -> Fed {
+        let clock = MockClock::new(0);
+        let mut fed = Fed {
+            last: None,
+            mismatches: 0,
+        };
+        let mut expect: Option<CanFrame> = None;
+        let mut k = 0;
+        let mut request = 0;
+        while let Some((dir, frame)) = recorded(k) {
+            k += 1;
+            if dir == 1 {
+                // A recorded response: what the controller must have answered.
+                let same = expect
+                    .take()
+                    .is_some_and(|e| e.data() == frame.data() && e.id() == frame.id());
+                fed.mismatches += usize::from(!same);
+                continue;
+            }
+            if request == until {
+                break;
+            }
+            let mut f = frame;
+            if corrupt == Some(request) {
+                let mut d = [0u8; 8];
+                let n = f.data().len();
+                d[..n].copy_from_slice(f.data());
+                d[n - 1] ^= 0x10;
+                let id = f.standard_id().unwrap_or(0);
+                f = CanFrame::standard(id, &d[..n]).unwrap_or(f);
+            }
+            request += 1;
+            let (out, n) = p.measure(|| ctrl.on_frame_slots(&f, &clock, slots));
+            stats.add(n.map(|v| v.saturating_sub(overhead)));
+            if let Some(r) = out.iter().find(|r| r.standard_id() == Some(0x580 + 0x10)) {
+                fed.last = Some((r.data()[0], r.data().get(1).copied().unwrap_or(0xFF)));
+                expect = Some(*r);
+            }
+        }
+        fed
+    }
+
+    /// Requests in the recording.
+    fn requests() -> usize {
+        (0..FLASH.0.len() / 12)
+            .filter(|&k| matches!(recorded(k), Some((0, _))))
+            .count()
+    }
+
+    /// The trace through the evaluator over the active slot's bytes (`tag` lines: exact f32
+    /// observations, so the golden actions apply) and through the controller (`ctag` lines).
+    fn replay(
+        p: &mut impl Platform,
+        ctrl: &mut Controller<'static, WIDTH>,
+        slots: &mut PolicySlots<'_>,
+        steps: usize,
+        tags: (&str, &str),
+        stats: &mut Stats,
+        overhead: u32,
+    ) -> Result<(), Fault> {
+        let mut net = {
+            let view =
+                dex_policy::PolicyView::decode(slots.active_file()).map_err(Fault::Policy)?;
+            Network::<WIDTH>::new(&view, slots.active_file()).map_err(Fault::Policy)?
+        };
+        for step in 0..steps {
+            let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
+            let mut action = [0.0f32; ACT_DIM];
+            net.act(slots.active_file(), &obs, &mut action)
+                .map_err(|error| Fault::Eval { step, error })?;
+            p.line(format_args!("{} {step} {}", tags.0, Bits(&action)));
+        }
+        let cfg = ControllerConfig::default();
+        let clock = MockClock::new(0);
+        ctrl.poll(&clock);
+        let mut senders = [E2eSender::default(); OBS_FRAMES];
+        // One observation before the start: the controller's end-to-end counters follow this
+        // fresh sender (not evaluated outside operational).
+        if let Some(obs) = observation(&TRACE.0, 0) {
+            for f in &encode_observation(&obs, 15, &mut senders) {
+                ctrl.on_frame_slots(f, &clock, slots);
+            }
+        }
+        ctrl.on_frame_slots(&nmt_frame(NmtCommand::Start, cfg.node_id), &clock, slots);
+        for step in 0..steps {
+            let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
+            let frames = encode_observation(&obs, step as u8, &mut senders);
+            clock.advance(u64::from(cfg.period_us));
+            let ((), n) = p.measure(|| {
+                ctrl.poll(&clock);
+                for f in &frames {
+                    ctrl.on_frame_slots(f, &clock, slots);
+                }
+            });
+            stats.add(n.map(|v| v.saturating_sub(overhead)));
+            if ctrl.state() != State::Operational {
+                return Err(Fault::Controller {
+                    step,
+                    state: ctrl.state(),
+                    fault: ctrl.fault(),
+                });
+            }
+            p.line(format_args!(
+                "{} {step} {}",
+                tags.1,
+                Bits(ctrl.last_action())
+            ));
+        }
+        ctrl.on_frame_slots(&nmt_frame(NmtCommand::Stop, cfg.node_id), &clock, slots);
+        Ok(())
+    }
+
+    /// The slot phase; see the crate documentation.
+    pub fn replay_slots(
+        p: &mut impl Platform,
+        steps: usize,
+        overhead: u32,
+        summary: &mut Summary,
+    ) -> Result<(), Fault> {
+        let (a, b) = take().ok_or(fail("regions taken twice"))?;
+        let mut slots = PolicySlots::mount(a, b).map_err(|_| fail("mount"))?;
+        if slots.active().is_some() {
+            return Err(fail("erased regions hold a policy"));
+        }
+        let cfg = ControllerConfig::default();
+        let mut ctrl = Controller::<'static, WIDTH>::new(cfg);
+        // Factory provisioning: the embedded policy written into a slot through the same API.
+        let file = &POLICY.0;
+        slots
+            .begin(file.len())
+            .map_err(|_| fail("policy larger than a slot"))?;
+        for (n, chunk) in file.chunks(SEGMENT_BYTES).enumerate() {
+            slots
+                .segment(n as u8, chunk)
+                .map_err(|_| fail("provisioning write"))?;
+        }
+        slots
+            .end(CRC32.checksum(file), |view, _| ctrl.check_policy(view))
+            .map_err(|_| fail("provisioning verification"))?;
+        ctrl.activate_slot(&mut slots)
+            .map_err(|_| fail("provisioning activation"))?;
+        let old_crc = slots.active_crc();
+        p.stack_checkpoint("slots-provision");
+        replay(
+            p,
+            &mut ctrl,
+            &mut slots,
+            steps,
+            ("P", "R"),
+            &mut summary.slot_controller,
+            overhead,
+        )?;
+        p.stack_checkpoint("slots-before");
+
+        let total = requests();
+        // 1. Cut in the middle of the data, then a reset: the old slot is active.
+        let fed = feed(
+            p,
+            &mut ctrl,
+            &mut slots,
+            total / 2,
+            None,
+            &mut summary.flash_request,
+            overhead,
+        );
+        let (a, b) = slots.into_regions();
+        slots = PolicySlots::mount(a, b).map_err(|_| fail("mount after the cut"))?;
+        ctrl = Controller::<'static, WIDTH>::new(cfg);
+        ctrl.attach_slots(&slots)
+            .map_err(|_| fail("attach after the cut"))?;
+        let cut_ok = slots.active_crc() == old_crc && fed.mismatches == 0;
+        p.line(format_args!(
+            "F cut requests={} of {total} active={:08x} old={}",
+            total / 2,
+            slots.active_crc(),
+            cut_ok
+        ));
+        if !cut_ok {
+            return Err(fail("a cut transfer changed the active slot"));
+        }
+        // 2. A corrupt segment (one bit in the middle data segment): refused, old slot active.
+        let fed = feed(
+            p,
+            &mut ctrl,
+            &mut slots,
+            total - 1,
+            Some(total / 2),
+            &mut summary.flash_request,
+            overhead,
+        );
+        let activate = feed_activate(p, &mut ctrl, &mut slots);
+        let corrupt_ok = fed.last == Some((0x83, 3))
+            && activate == Some((0x84, 7))
+            && slots.active_crc() == old_crc;
+        p.line(format_args!(
+            "F corrupt end={:02x?} activate={:02x?} active={:08x} old={}",
+            fed.last,
+            activate,
+            slots.active_crc(),
+            corrupt_ok
+        ));
+        if !corrupt_ok {
+            return Err(fail("a corrupt transfer was not refused"));
+        }
+        // 3. The whole recording: every response as recorded, the new file active.
+        let fed = feed(
+            p,
+            &mut ctrl,
+            &mut slots,
+            total,
+            None,
+            &mut summary.flash_request,
+            overhead,
+        );
+        let swapped =
+            fed.mismatches == 0 && fed.last == Some((0x84, 0)) && slots.active_crc() != old_crc;
+        p.line(format_args!(
+            "F flash requests={total} mismatches={} last={:02x?} active={:08x} swapped={swapped}",
+            fed.mismatches,
+            fed.last,
+            slots.active_crc()
+        ));
+        if !swapped {
+            return Err(fail("the recorded flash did not activate"));
+        }
+        p.stack_checkpoint("slots-flash");
+        replay(
+            p,
+            &mut ctrl,
+            &mut slots,
+            steps,
+            ("Q", "V"),
+            &mut summary.slot_controller,
+            overhead,
+        )?;
+        p.stack_checkpoint("slots-after");
+        Ok(())
+    }
+
+    /// Sends an activation request; the response's command byte and status.
+    fn feed_activate(
+        p: &mut impl Platform,
+        ctrl: &mut Controller<'static, WIDTH>,
+        slots: &mut PolicySlots<'_>,
+    ) -> Option<(u8, u8)> {
+        let _ = p;
+        let f = CanFrame::standard(0x600 + 0x10, &[0x04])?;
+        let out = ctrl.on_frame_slots(&f, &MockClock::new(0), slots);
+        out.iter()
+            .find(|r| r.standard_id() == Some(0x580 + 0x10))
+            .map(|r| (r.data()[0], r.data().get(1).copied().unwrap_or(0xFF)))
+    }
 }

@@ -158,6 +158,10 @@ enum Command {
         /// Quantise every layer to int8 (format version 2), as `policy quantise` does.
         #[arg(long)]
         int8: bool,
+        /// Write a valid policy whose every output is infinite (one hidden layer, the first
+        /// `--hidden` width): it loads, and faults at its first evaluation.
+        #[arg(long)]
+        faulting: bool,
     },
 }
 
@@ -206,7 +210,8 @@ fn main() -> Result<()> {
             seed,
             mismatched_layout,
             int8,
-        } => make_policy(&out, &hidden, seed, mismatched_layout, int8),
+            faulting,
+        } => make_policy(&out, &hidden, seed, mismatched_layout, int8, faulting),
     }
 }
 
@@ -501,8 +506,11 @@ fn make_policy(
     seed: u64,
     mismatched: bool,
     int8: bool,
+    faulting: bool,
 ) -> Result<()> {
-    let bytes = if mismatched {
+    let bytes = if faulting {
+        dex_runtime::testkit::jaco_policy_faulting(hidden.first().copied().unwrap_or(8), seed)?
+    } else if mismatched {
         use dex_policy::synth::{SynthSpec, synth_policy};
         use dex_runtime::interface::ACTION_JOINTS;
         let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS

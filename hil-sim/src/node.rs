@@ -10,19 +10,27 @@
 //! Error frames: bus-off (Linux `CAN_ERR_BUSOFF`) goes to [`Controller::on_bus_off`], the restart
 //! after it (`CAN_ERR_RESTARTED`) to [`Controller::on_bus_recovered`]; the bus's
 //! `< fault busoff MILLIS >` sends both.
+//!
+//! Policy storage: the runtime's A/B slots (`dex_runtime::slots`) over two fixed regions owned by
+//! the node ([`SlotStorage`]); every frame goes through `Controller::on_frame_slots`, which also
+//! serves the flash protocol. Nothing is allocated per flash.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use dex_policy::PolicyView;
+use dex_runtime::slots::{FLASH_RESPONSE_BASE, FlashStatus};
 use dex_runtime::testkit::aligned_copy;
-use dex_runtime::{Clock, Controller, ControllerConfig, Diagnostics, MockClock, Outbox};
+use dex_runtime::{
+    Clock, Controller, ControllerConfig, Diagnostics, MockClock, Network, Outbox, PolicySlots,
+};
 
 use crate::bus::{ERR_BUSOFF, ERR_RESTARTED};
 use crate::client::{BusClient, ClientError, Received};
-use crate::flash::FlashServer;
+use crate::flash::SlotStorage;
 use dex_runtime::can::CanFrame;
+use embedded_can::Frame;
 
 /// CANopen SYNC identifier: the lockstep cycle tick.
 pub const SYNC_ID: u16 = 0x080;
@@ -44,6 +52,9 @@ pub enum NodeError {
     /// The bus connection failed.
     #[error(transparent)]
     Bus(#[from] ClientError),
+    /// The slot storage could not be mounted.
+    #[error("policy slots: {0}")]
+    Slots(dex_runtime::SlotError),
 }
 
 /// A monotonic wall clock in microseconds since its creation.
@@ -114,8 +125,16 @@ fn send(port: &mut impl NodePort, out: &Outbox) -> Result<(), ClientError> {
     port.flush()
 }
 
-/// Runs the controller node until `stop` is set or the bus goes away. `policy` is a policy file;
-/// a refused file leaves the controller without policy (it stays pre-operational), as on a device.
+/// Flash bookkeeping of the node for its status line.
+#[derive(Debug, Default, Clone, Copy)]
+struct FlashCounters {
+    /// Activation requests answered with status 5 (refused by the controller).
+    activation_failures: u64,
+}
+
+/// Runs the controller node until `stop` is set or the bus goes away. `policy` is a policy file,
+/// written into a slot and activated as a flash over the bus would; a refused file leaves the
+/// controller without policy (it stays pre-operational), as on a device.
 pub fn run_controller_node(
     port: &mut impl NodePort,
     policy: Option<&[u8]>,
@@ -124,45 +143,41 @@ pub fn run_controller_node(
     stop: &AtomicBool,
     status: Option<Arc<Mutex<String>>>,
 ) -> Result<NodeReport, NodeError> {
-    // The controller borrows its policy for its whole life; flashing swaps in new files, so every
-    // policy lives in a leaked aligned buffer (one per load; see `flash`).
-    let bytes: Option<&'static [u8]> =
-        policy.map(|p| Box::leak(Box::new(aligned_copy(p))).as_bytes());
+    let mut storage = SlotStorage::new();
+    let (a, b) = storage.regions();
+    // Erased regions: no active slot yet.
+    let mut slots = PolicySlots::mount(a, b).map_err(NodeError::Slots)?;
     let mut controller = Controller::<'static, NODE_WIDTH>::new(cfg);
-    let mut flash = FlashServer::new(cfg.node_id, bytes);
     let mut load_error = None;
-    if let Some(bytes) = bytes {
-        let loaded = PolicyView::decode(bytes)
-            .map_err(|e| e.to_string())
-            .and_then(|view| controller.load_policy(&view).map_err(|e| e.to_string()));
-        if let Err(e) = loaded {
-            eprintln!("hil-sim: controller node refused the policy: {e}");
-            load_error = Some(e);
-        }
+    if let Some(p) = policy
+        && let Err(e) = install(&mut controller, &mut slots, p)
+    {
+        eprintln!("hil-sim: controller node refused the policy: {e}");
+        load_error = Some(e);
     }
     let load = match (&load_error, policy) {
         (Some(_), _) => "refused",
         (None, Some(_)) => "loaded",
         (None, None) => "none",
     };
-    let publish = |c: &Controller<'_, NODE_WIDTH>, f: &FlashServer| {
+    let publish = |c: &Controller<'_, NODE_WIDTH>, f: &FlashCounters| {
         if let Some(slot) = status.as_ref()
             && let Ok(mut s) = slot.lock()
         {
-            *s = status_line(c, load, f.activation_failures());
+            *s = status_line(c, load, f.activation_failures);
         }
     };
-    publish(&controller, &flash);
+    let mut counters = FlashCounters::default();
+    publish(&controller, &counters);
+    let mut node = Node {
+        node_id: cfg.node_id,
+        controller: &mut controller,
+        slots: &mut slots,
+        counters: &mut counters,
+    };
     let result = match mode {
-        TimeMode::RealTime => real_time_loop(
-            port,
-            &mut controller,
-            &mut flash,
-            cfg.period_us,
-            stop,
-            &publish,
-        ),
-        TimeMode::Lockstep => lockstep_loop(port, &mut controller, &mut flash, stop, &publish),
+        TimeMode::RealTime => real_time_loop(port, &mut node, cfg.period_us, stop, &publish),
+        TimeMode::Lockstep => lockstep_loop(port, &mut node, stop, &publish),
     };
     match result {
         Ok(()) | Err(ClientError::Closed) => {}
@@ -174,31 +189,48 @@ pub fn run_controller_node(
     })
 }
 
-/// Frames for the flash server go there (activation loads the new file, and only then is it
-/// answered: status 5 when the controller refuses it); all others to the controller.
-fn dispatch(
+/// Writes `policy` into the inactive slot, verifies and activates it (the start-up policy): the
+/// controller's checks first, for a readable refusal.
+fn install(
     controller: &mut Controller<'static, NODE_WIDTH>,
-    flash: &mut FlashServer,
-    frame: &CanFrame,
-    clock: &impl Clock,
-) -> Outbox {
-    if !flash.is_request(frame) {
-        return controller.on_frame(frame, clock);
+    slots: &mut PolicySlots<'_>,
+    policy: &[u8],
+) -> Result<(), String> {
+    let copy = aligned_copy(policy);
+    let view = PolicyView::decode(copy.as_bytes()).map_err(|e| e.to_string())?;
+    controller.check_policy(&view).map_err(|e| e.to_string())?;
+    Network::<NODE_WIDTH>::new(&view, copy.as_bytes()).map_err(|e| e.to_string())?;
+    slots.begin(policy.len()).map_err(|e| e.to_string())?;
+    for (n, chunk) in policy.chunks(dex_runtime::slots::SEGMENT_BYTES).enumerate() {
+        slots
+            .segment(n as u8, chunk)
+            .map_err(|s| format!("slot write: status {s:?}"))?;
     }
-    let outcome = flash.handle(frame, controller.state());
-    let mut out = Outbox::new();
-    let mut response = outcome.response;
-    if let Some(activation) = outcome.activate {
-        let loaded = PolicyView::decode(activation.bytes())
-            .map_err(|e| e.to_string())
-            .and_then(|view| controller.load_policy(&view).map_err(|e| e.to_string()));
-        if let Err(e) = &loaded {
-            eprintln!("hil-sim: flashed policy refused at activation: {e}");
+    let crc = dex_runtime::slots::CRC32.checksum(policy);
+    slots
+        .end(crc, |view, _| controller.check_policy(view))
+        .map_err(|s| format!("slot verification: status {s:?}"))?;
+    controller.activate_slot(slots).map_err(|e| e.to_string())
+}
+
+/// The controller with its slots.
+struct Node<'a, 'r> {
+    node_id: u8,
+    controller: &'a mut Controller<'static, NODE_WIDTH>,
+    slots: &'a mut PolicySlots<'r>,
+    counters: &'a mut FlashCounters,
+}
+
+/// Every frame goes to the controller with the slots (flash requests included); refused
+/// activations are counted.
+fn dispatch(node: &mut Node<'_, '_>, frame: &CanFrame, clock: &impl Clock) -> Outbox {
+    let out = node.controller.on_frame_slots(frame, clock, node.slots);
+    let response = FLASH_RESPONSE_BASE + u16::from(node.node_id);
+    for f in &out {
+        if f.standard_id() == Some(response) && f.data() == [0x84, FlashStatus::Refused as u8] {
+            node.counters.activation_failures = node.counters.activation_failures.saturating_add(1);
+            eprintln!("hil-sim: flashed policy refused at activation");
         }
-        response = flash.activated(activation, loaded.is_ok());
-    }
-    if let Some(r) = response {
-        let _ = out.push(r);
     }
     out
 }
@@ -221,40 +253,39 @@ fn on_error_frame(controller: &mut Controller<'static, NODE_WIDTH>, class: u32) 
 
 fn real_time_loop(
     port: &mut impl NodePort,
-    controller: &mut Controller<'static, NODE_WIDTH>,
-    flash: &mut FlashServer,
+    node: &mut Node<'_, '_>,
     period_us: u32,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashServer),
+    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashCounters),
 ) -> Result<(), ClientError> {
     let clock = WallClock::new();
     let period = u64::from(period_us.max(1));
-    let out = controller.poll(&clock);
+    let out = node.controller.poll(&clock);
     send(port, &out)?;
     let mut next = clock.now_us() + period;
     while !stop.load(Ordering::Relaxed) {
         let now = clock.now_us();
         if now >= next {
-            let out = controller.poll(&clock);
+            let out = node.controller.poll(&clock);
             send(port, &out)?;
             next += period * ((now - next) / period + 1);
-            publish(controller, flash);
+            publish(node.controller, node.counters);
             continue;
         }
         let wait = Duration::from_micros((next - now).min(20_000));
         match port.receive_timeout(wait)? {
             Some(Received::Frame(frame, _)) => {
-                let out = dispatch(controller, flash, &frame, &clock);
+                let out = dispatch(node, &frame, &clock);
                 send(port, &out)?;
                 if !out.is_empty() {
-                    publish(controller, flash);
+                    publish(node.controller, node.counters);
                 }
             }
             Some(Received::Error(class, _)) => {
-                for out in on_error_frame(controller, class) {
+                for out in on_error_frame(node.controller, class) {
                     send(port, &out)?;
                 }
-                publish(controller, flash);
+                publish(node.controller, node.counters);
             }
             None => {}
         }
@@ -264,10 +295,9 @@ fn real_time_loop(
 
 fn lockstep_loop(
     port: &mut impl NodePort,
-    controller: &mut Controller<'static, NODE_WIDTH>,
-    flash: &mut FlashServer,
+    node: &mut Node<'_, '_>,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashServer),
+    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashCounters),
 ) -> Result<(), ClientError> {
     let clock = MockClock::new(0);
     while !stop.load(Ordering::Relaxed) {
@@ -275,21 +305,21 @@ fn lockstep_loop(
             Some(Received::Frame(frame, ts)) => {
                 clock.set(ts);
                 let out = if frame.standard_id() == Some(SYNC_ID) {
-                    controller.poll(&clock)
+                    node.controller.poll(&clock)
                 } else {
-                    dispatch(controller, flash, &frame, &clock)
+                    dispatch(node, &frame, &clock)
                 };
                 send(port, &out)?;
             }
             Some(Received::Error(class, ts)) => {
                 clock.set(ts);
-                for out in on_error_frame(controller, class) {
+                for out in on_error_frame(node.controller, class) {
                     send(port, &out)?;
                 }
             }
             None => continue,
         }
-        publish(controller, flash);
+        publish(node.controller, node.counters);
     }
     Ok(())
 }

@@ -6,6 +6,11 @@
 //! `poll` runs the cycle bookkeeping once per period: watchdog, heartbeat, and the safe action in
 //! every state but operational. The CAN driver reports bus-off and its end through
 //! [`Controller::on_bus_off`] and [`Controller::on_bus_recovered`].
+//!
+//! The policy is either a file borrowed for `'p` ([`Controller::load_policy`]) or the active slot
+//! of [`PolicySlots`] ([`Controller::attach_slots`]), which the controller then reads on every
+//! evaluation: such a controller takes its frames through [`Controller::on_frame_slots`], which
+//! also serves the flash protocol (transfer, activation, roll-back; `crate::slots`).
 
 use dex_policy::{FORMAT_VERSION, PolicyView};
 use heapless::Vec;
@@ -17,10 +22,14 @@ use crate::can::messages::{
     policy_info_frame,
 };
 use crate::clock::Clock;
-use crate::error::LoadError;
+use crate::error::{EvalError, LoadError};
 use crate::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS};
-use crate::mlp::Mlp;
+use crate::mlp::{Mlp, Network};
 use crate::observation::{FrameOutcome, ObservationAssembler, ObservationFault, check_observation};
+use crate::slots::{
+    FLASH_REQUEST_BASE, FLASH_RESPONSE_BASE, FlashStatus, PolicySlots, Request, SlotCommand,
+    SlotError, end_crc,
+};
 
 /// Frames to send after one call; 8 slots, and no call produces more than 6.
 pub type Outbox = Vec<CanFrame, 8>;
@@ -80,6 +89,8 @@ pub enum FaultCode {
     NoPolicy,
     /// The CAN controller went bus-off (reported with emergency 0x8140 once the bus is back).
     BusOff,
+    /// A newly activated policy's first evaluation failed: the previous slot is active again.
+    PolicyRolledBack,
 }
 
 impl FaultCode {
@@ -93,6 +104,7 @@ impl FaultCode {
             FaultCode::ActionNonFinite => 4,
             FaultCode::NoPolicy => 5,
             FaultCode::BusOff => 6,
+            FaultCode::PolicyRolledBack => 7,
         }
     }
 
@@ -107,6 +119,7 @@ impl FaultCode {
             FaultCode::ActionNonFinite => 0xFF04,
             FaultCode::NoPolicy => 0xFF05,
             FaultCode::BusOff => 0x8140,
+            FaultCode::PolicyRolledBack => 0xFF07,
         }
     }
 }
@@ -176,13 +189,22 @@ pub struct PolicyInfo {
     pub task: u8,
 }
 
+/// Where the controller's policy lives.
+#[derive(Debug, Clone)]
+enum Policy<'p, const WIDTH: usize> {
+    /// A file borrowed for `'p` ([`Controller::load_policy`]).
+    File(Mlp<'p, WIDTH>),
+    /// The active slot of the [`PolicySlots`] passed to [`Controller::on_frame_slots`].
+    Slot(Network<WIDTH>),
+}
+
 /// The controller; `WIDTH` is the evaluator's compile-time capacity (widest layer).
 #[derive(Debug, Clone)]
 pub struct Controller<'p, const WIDTH: usize> {
     cfg: ControllerConfig,
     state: State,
     fault: FaultCode,
-    policy: Option<Mlp<'p, WIDTH>>,
+    policy: Option<Policy<'p, WIDTH>>,
     info: Option<PolicyInfo>,
     assembler: ObservationAssembler,
     obs: [f32; OBS_DIM],
@@ -272,6 +294,16 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         if self.state == State::Operational {
             return Err(LoadError::Operational);
         }
+        self.check_policy(view)?;
+        self.policy = Some(Policy::File(Mlp::new(view)?));
+        self.info = Some(policy_info_of(view));
+        self.announce = true;
+        Ok(())
+    }
+
+    /// This controller's checks of a policy file: layout against [`crate::interface`], control
+    /// period; capacity is checked when the evaluator is built.
+    pub fn check_policy(&self, view: &PolicyView<'_>) -> Result<(), LoadError> {
         view.check_layout(
             OBSERVATION_FIELDS.iter().map(|f| (f.name, f.size)),
             ACTION_JOINTS.iter().map(|j| j.name),
@@ -283,20 +315,128 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
                 controller_us: self.cfg.period_us,
             });
         }
-        let mlp = Mlp::new(view)?;
-        self.policy = Some(mlp);
-        self.info = Some(PolicyInfo {
-            layout_hash: view.header().layout_hash,
-            format_version: view.header().version,
-            task: view.body().task as u8,
-        });
-        self.announce = true;
         Ok(())
+    }
+
+    /// The slot evaluator of `file` (decoded as `view`), after this controller's checks.
+    fn bind_slot(&self, view: &PolicyView<'_>, file: &[u8]) -> Result<Network<WIDTH>, LoadError> {
+        self.check_policy(view)?;
+        Ok(Network::new(view, file)?)
+    }
+
+    /// Takes the active slot of `slots` as the policy (at start-up, after [`PolicySlots::mount`]).
+    /// Refused while operational; refused, leaving the current policy, when the slot is empty or
+    /// the controller refuses its file. Frames then go through [`Controller::on_frame_slots`].
+    pub fn attach_slots(&mut self, slots: &PolicySlots<'_>) -> Result<(), SlotError> {
+        if self.state == State::Operational {
+            return Err(SlotError::Operational);
+        }
+        let (net, info) = slots
+            .bind_active(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))?;
+        self.set_slot_policy(net, info);
+        Ok(())
+    }
+
+    /// Activates the verified file in the inactive slot of `slots`: refused while operational,
+    /// and (leaving the active policy) when the controller refuses the file. Takes effect at
+    /// once, between two control cycles; the policy-info frame goes out at the next cycle. The
+    /// policy is on trial until its first evaluation: if that fails, the controller rolls it back.
+    pub fn activate_slot(&mut self, slots: &mut PolicySlots<'_>) -> Result<(), SlotError> {
+        if self.state == State::Operational {
+            return Err(SlotError::Operational);
+        }
+        let (net, info) =
+            slots.activate(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))?;
+        self.set_slot_policy(net, info);
+        Ok(())
+    }
+
+    /// Makes the previous policy of `slots` active again (explicit roll-back, flash request
+    /// `0x07`); refused while operational or when no previous policy is kept.
+    pub fn roll_back_slot(&mut self, slots: &mut PolicySlots<'_>) -> Result<(), SlotError> {
+        if self.state == State::Operational {
+            return Err(SlotError::Operational);
+        }
+        let (net, info) = slots
+            .roll_back(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))?;
+        self.set_slot_policy(net, info);
+        Ok(())
+    }
+
+    #[inline(always)]
+    fn set_slot_policy(&mut self, net: Network<WIDTH>, info: PolicyInfo) {
+        self.policy = Some(Policy::Slot(net));
+        self.info = Some(info);
+        self.announce = true;
+    }
+
+    /// [`Controller::on_frame`] for a controller whose policy lives in `slots`: flash requests
+    /// (`0x600 + node`) go to the slots and are answered on `0x580 + node`; every other frame is
+    /// handled as by `on_frame`, evaluating the active slot. A fault in the first evaluation of a
+    /// newly activated policy rolls it back (previous slot active again), goes to safe-stop and
+    /// sends emergency 0xFF07 (fault `PolicyRolledBack`); NMT start then runs the previous policy.
+    pub fn on_frame_slots(
+        &mut self,
+        frame: &impl embedded_can::Frame,
+        clock: &impl Clock,
+        slots: &mut PolicySlots<'_>,
+    ) -> Outbox {
+        let request = FLASH_REQUEST_BASE + u16::from(self.cfg.node_id);
+        match frame.id() {
+            embedded_can::Id::Standard(s) if !frame.is_remote_frame() && s.as_raw() == request => {
+                self.on_flash_request(frame.data(), slots)
+            }
+            _ => self.frame_in(frame, clock, Some(slots)),
+        }
+    }
+
+    fn on_flash_request(&mut self, data: &[u8], slots: &mut PolicySlots<'_>) -> Outbox {
+        let mut out = Outbox::new();
+        let bytes = match slots.request(data) {
+            Request::Silent => return out,
+            Request::Respond(b) => b,
+            Request::Command(cmd) => {
+                let status = match cmd {
+                    SlotCommand::Verify => match end_crc(data) {
+                        Some(crc) => match slots
+                            .end(crc, |view, file| self.bind_slot(view, file).map(|_| ()))
+                        {
+                            Ok(()) => FlashStatus::Ok,
+                            Err(s) => s,
+                        },
+                        None => FlashStatus::Format,
+                    },
+                    SlotCommand::Activate => match self.activate_slot(slots) {
+                        Ok(()) => FlashStatus::Ok,
+                        Err(e) => e.status(),
+                    },
+                    SlotCommand::RollBack => match self.roll_back_slot(slots) {
+                        Ok(()) => FlashStatus::Ok,
+                        Err(e) => e.status(),
+                    },
+                };
+                PolicySlots::response(cmd, status)
+            }
+        };
+        let id = FLASH_RESPONSE_BASE + u16::from(self.cfg.node_id);
+        if let Some(f) = CanFrame::standard(id, bytes.as_bytes()) {
+            let _ = out.push(f);
+        }
+        out
     }
 
     /// Handles one received frame; returns the frames to send (actions when this frame completed an
     /// observation while operational, an emergency when it caused a fault).
     pub fn on_frame(&mut self, frame: &impl embedded_can::Frame, clock: &impl Clock) -> Outbox {
+        self.frame_in(frame, clock, None)
+    }
+
+    fn frame_in(
+        &mut self,
+        frame: &impl embedded_can::Frame,
+        clock: &impl Clock,
+        slots: Option<&mut PolicySlots<'_>>,
+    ) -> Outbox {
         let mut out = Outbox::new();
         let id = match frame.id() {
             embedded_can::Id::Standard(s) if !frame.is_remote_frame() => s.as_raw(),
@@ -308,7 +448,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         if id == NMT_ID {
             self.on_nmt(frame.data(), clock, &mut out);
         } else if let Some(k) = ObservationAssembler::frame_index(id) {
-            self.on_observation_frame(k, frame.data(), clock, &mut out);
+            self.on_observation_frame(k, frame.data(), clock, &mut out, slots);
         } else {
             self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
         }
@@ -476,6 +616,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         data: &[u8],
         clock: &impl Clock,
         out: &mut Outbox,
+        slots: Option<&mut PolicySlots<'_>>,
     ) {
         self.frames_this_cycle = true;
         let abandoned = self.assembler.abandoned;
@@ -520,12 +661,44 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.evaluations_this_cycle += 1;
         self.diag.evaluations = self.diag.evaluations.saturating_add(1);
         let mut action = [0.0f32; ACT_DIM];
-        match policy.act(&self.obs, &mut action) {
+        let slot_policy = matches!(policy, Policy::Slot(_));
+        let result = match (policy, slots.as_deref()) {
+            (Policy::File(mlp), _) => mlp.act(&self.obs, &mut action),
+            (Policy::Slot(net), Some(s)) => net.act(s.active_file(), &self.obs, &mut action),
+            (Policy::Slot(_), None) => Err(EvalError::PolicyBytes),
+        };
+        if let Some(s) = slots {
+            if result.is_err() && slot_policy && s.on_trial() {
+                self.roll_back_on_fault(s, out);
+                return;
+            }
+            s.confirm();
+        }
+        match result {
             Ok(()) => {
                 self.action = action;
                 for f in encode_action(&self.action, sample, &mut self.action_tx) {
                     let _ = out.push(f);
                 }
+            }
+            Err(_) => {
+                self.fault = FaultCode::ActionNonFinite;
+                self.enter(State::Fault, out);
+                self.push_emcy(out);
+                self.send_safe_action(out);
+            }
+        }
+    }
+
+    /// The first evaluation of a newly activated slot failed: safe-stop, the previous slot back,
+    /// emergency 0xFF07. Without a previous policy to go back to, the usual fault.
+    fn roll_back_on_fault(&mut self, slots: &mut PolicySlots<'_>, out: &mut Outbox) {
+        match slots
+            .roll_back_trial(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))
+        {
+            Ok((net, info)) => {
+                self.set_slot_policy(net, info);
+                self.safe_stop(FaultCode::PolicyRolledBack, out);
             }
             Err(_) => {
                 self.fault = FaultCode::ActionNonFinite;
@@ -603,6 +776,15 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             None => (0, FORMAT_VERSION as u8, 0xFF),
         };
         let _ = out.push(policy_info_frame(hash, version, task, &mut self.info_tx));
+    }
+}
+
+/// The policy-info fields of a file.
+fn policy_info_of(view: &PolicyView<'_>) -> PolicyInfo {
+    PolicyInfo {
+        layout_hash: view.header().layout_hash,
+        format_version: view.header().version,
+        task: view.body().task as u8,
     }
 }
 

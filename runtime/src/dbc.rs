@@ -12,7 +12,7 @@ use crate::controller::FaultCode;
 use crate::interface::{ACTION_JOINTS, OBSERVATION_FIELDS, Quantity};
 
 /// Every fault code, in code order (the DBC's value tables).
-const FAULTS: [FaultCode; 7] = [
+const FAULTS: [FaultCode; 8] = [
     FaultCode::None,
     FaultCode::ObservationTimeout,
     FaultCode::ObservationNonFinite,
@@ -20,6 +20,7 @@ const FAULTS: [FaultCode; 7] = [
     FaultCode::ActionNonFinite,
     FaultCode::NoPolicy,
     FaultCode::BusOff,
+    FaultCode::PolicyRolledBack,
 ];
 
 /// The DBC name of a fault code and of its emergency error code.
@@ -34,6 +35,7 @@ fn fault_names(fault: FaultCode) -> (&'static str, &'static str) {
         FaultCode::ActionNonFinite => ("action_non_finite", "action_non_finite"),
         FaultCode::NoPolicy => ("no_policy", "no_policy"),
         FaultCode::BusOff => ("bus_off", "recovered_from_bus_off"),
+        FaultCode::PolicyRolledBack => ("policy_rolled_back", "policy_rolled_back"),
     }
 }
 

@@ -32,6 +32,9 @@ pub enum EvalError {
         /// Index of the joint.
         index: usize,
     },
+    /// The bytes given to [`crate::mlp::Network::act`] do not hold the network's values (too
+    /// short, or the values not 4-byte aligned in memory).
+    PolicyBytes,
 }
 
 impl fmt::Display for EvalError {
@@ -51,6 +54,9 @@ impl fmt::Display for EvalError {
             }
             EvalError::NonFiniteAction { index } => {
                 write!(f, "network output {index} is not finite")
+            }
+            EvalError::PolicyBytes => {
+                f.write_str("the policy bytes do not hold the network's values")
             }
         }
     }

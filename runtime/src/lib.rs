@@ -5,6 +5,9 @@
 //!   2) alike, chosen by the file.
 //! - [`controller::Controller`] wraps it in a CANopen-style state machine with a watchdog: it takes
 //!   frames ([`embedded_can::Frame`]) and time ([`clock::Clock`]) and returns frames to send.
+//! - [`slots::PolicySlots`] keeps two policy slots in caller-provided regions (flash sectors):
+//!   the segmented CAN transfer writes the inactive one, which is verified before the controller
+//!   activates it; roll-back to the previous policy, by request or after a faulty first evaluation.
 //! - [`can`] holds the frame type, AUTOSAR-E2E-profile-11-style protection and the cell's messages;
 //!   [`interface`] the observation and action layout they carry.
 //!
@@ -27,10 +30,12 @@ mod int8;
 pub mod interface;
 pub mod mlp;
 pub mod observation;
+pub mod slots;
 #[cfg(feature = "std")]
 pub mod testkit;
 
 pub use clock::{Clock, MockClock};
 pub use controller::{Controller, ControllerConfig, Diagnostics, FaultCode, Outbox, State};
 pub use error::{EvalError, LoadError};
-pub use mlp::Mlp;
+pub use mlp::{Mlp, Network};
+pub use slots::{FlashStatus, PolicySlots, SlotError};

@@ -56,16 +56,75 @@ struct JointMap {
     max: f32,
 }
 
+/// What a network needs of its file besides the values: small, unlike the scratch buffers.
+#[derive(Debug, Clone)]
+struct Layout<const WIDTH: usize> {
+    layers: Vec<Layer, MAX_LAYERS>,
+    joints: Vec<JointMap, MAX_ACTIONS>,
+    obs_dim: usize,
+    clip: f32,
+}
+
 /// A loaded policy with its scratch buffers; `WIDTH` is the widest layer (or input) it accepts
 /// (for int8 layers the input width rounded up to a multiple of 4).
 ///
 /// Holds two `[f32; WIDTH]` activations buffers and one `[i16; WIDTH]` buffer for the quantised
 /// inputs of int8 layers, and borrows the weights: a 48-256-256-9 policy needs 2.5 kB of RAM here
-/// while its weights (323 kB f32, 81 kB int8) stay in the file (flash).
+/// while its weights (323 kB f32, 81 kB int8) stay in the file (flash). A [`Network`] with the
+/// file's values borrowed for `'a`.
 #[derive(Debug, Clone)]
 pub struct Mlp<'a, const WIDTH: usize> {
     values: &'a [f32],
-    words: &'a [u32],
+    net: Network<WIDTH>,
+}
+
+impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
+    /// This evaluator's capacity.
+    pub const CAPACITY: Capacity = Network::<WIDTH>::CAPACITY;
+
+    /// Builds an evaluator over a decoded policy, borrowing its values (which must be 4-byte aligned
+    /// in memory; see [`dex_policy::Values::as_slice`]).
+    pub fn new(view: &PolicyView<'a>) -> Result<Self, FormatError> {
+        let values = view.values().as_slice()?;
+        Ok(Mlp {
+            values,
+            net: Network::from_layout(Network::<WIDTH>::layout(view)?, values, 0),
+        })
+    }
+
+    /// Observation dimension the policy expects.
+    pub fn obs_dim(&self) -> usize {
+        self.net.obs_dim
+    }
+
+    /// Number of joint commands the policy produces.
+    pub fn act_dim(&self) -> usize {
+        self.net.joints.len()
+    }
+
+    /// Number of layers evaluated with int8 weights.
+    pub fn int8_layers(&self) -> usize {
+        self.net.int8_layers()
+    }
+
+    /// Evaluates the policy: normalises and clips `obs`, runs the network and writes one clamped
+    /// joint command per joint into `action`. Work is bounded by the policy's size, which is bounded
+    /// by `WIDTH` and [`MAX_LAYERS`].
+    pub fn act(&mut self, obs: &[f32], action: &mut [f32]) -> Result<(), EvalError> {
+        self.net.run(self.values, obs, action)
+    }
+}
+
+/// A policy's network without its values: layer layout as offsets, joint maps and scratch
+/// buffers, and where the values lie in the file. It borrows nothing, so it can be kept while
+/// the file's storage is not (a flash slot, [`crate::slots::PolicySlots`]): every evaluation takes
+/// the file's bytes ([`Network::act`]). Same arithmetic, and so the same bits, as [`Mlp`].
+#[derive(Debug, Clone)]
+pub struct Network<const WIDTH: usize> {
+    /// Byte offset of the first value in the file.
+    values_at: usize,
+    /// Number of 4-byte values.
+    values_len: usize,
     xq: Int16Buffer<WIDTH>,
     layers: Vec<Layer, MAX_LAYERS>,
     joints: Vec<JointMap, MAX_ACTIONS>,
@@ -75,7 +134,7 @@ pub struct Mlp<'a, const WIDTH: usize> {
     back: [f32; WIDTH],
 }
 
-impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
+impl<const WIDTH: usize> Network<WIDTH> {
     /// This evaluator's capacity.
     pub const CAPACITY: Capacity = Capacity {
         max_obs: WIDTH,
@@ -88,11 +147,43 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
         max_layers: MAX_LAYERS,
     };
 
-    /// Builds an evaluator over a decoded policy, borrowing its values (which must be 4-byte aligned
-    /// in memory; see [`dex_policy::Values::as_slice`]).
-    pub fn new(view: &PolicyView<'a>) -> Result<Self, FormatError> {
-        view.check_capacity(&Self::CAPACITY)?;
+    /// Builds the network of `view`, which was decoded from `file` (`PolicyView::decode(file)`);
+    /// later evaluations take the same file's bytes. Fails like [`Mlp::new`], and with
+    /// [`FormatError::MalformedBody`] when the view's values do not lie inside `file`.
+    pub fn new(view: &PolicyView<'_>, file: &[u8]) -> Result<Self, FormatError> {
         let values = view.values().as_slice()?;
+        let start = (values.as_ptr() as usize).wrapping_sub(file.as_ptr() as usize);
+        let inside = (values.as_ptr() as usize) >= (file.as_ptr() as usize)
+            && start
+                .checked_add(core::mem::size_of_val(values))
+                .is_some_and(|end| end <= file.len());
+        if !inside {
+            return Err(FormatError::MalformedBody);
+        }
+        Ok(Self::from_layout(Self::layout(view)?, values, start))
+    }
+
+    /// The network around `layout`, whose values (`values`) start `values_at` bytes into its file.
+    /// Built in the caller's return slot (`#[inline(always)]`): the scratch buffers are large, and
+    /// an intermediate copy would cost their size again in stack.
+    #[inline(always)]
+    fn from_layout(layout: Layout<WIDTH>, values: &[f32], values_at: usize) -> Self {
+        Network {
+            values_at,
+            values_len: values.len(),
+            xq: Int16Buffer([0; WIDTH]),
+            layers: layout.layers,
+            joints: layout.joints,
+            obs_dim: layout.obs_dim,
+            clip: layout.clip,
+            front: [0.0; WIDTH],
+            back: [0.0; WIDTH],
+        }
+    }
+
+    /// The layer layout and joint maps of `view`, checked against this capacity.
+    fn layout(view: &PolicyView<'_>) -> Result<Layout<WIDTH>, FormatError> {
+        view.check_capacity(&Self::CAPACITY)?;
         let body = view.body();
         let mut layers = Vec::new();
         for (l, spec) in view.layers().zip(body.layers.iter()) {
@@ -139,16 +230,11 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
                     max: MAX_ACTIONS,
                 })?;
         }
-        Ok(Mlp {
-            values,
-            words: bytemuck::cast_slice(values),
-            xq: Int16Buffer([0; WIDTH]),
+        Ok(Layout {
             layers,
             joints,
             obs_dim: body.obs_dim(),
             clip: body.obs_clip,
-            front: [0.0; WIDTH],
-            back: [0.0; WIDTH],
         })
     }
 
@@ -170,10 +256,26 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
             .count()
     }
 
-    /// Evaluates the policy: normalises and clips `obs`, runs the network and writes one clamped
-    /// joint command per joint into `action`. Work is bounded by the policy's size, which is bounded
-    /// by `WIDTH` and [`MAX_LAYERS`].
-    pub fn act(&mut self, obs: &[f32], action: &mut [f32]) -> Result<(), EvalError> {
+    /// Evaluates the policy over `file`, the bytes it was built from ([`Network::new`]), as
+    /// [`Mlp::act`] does. [`EvalError::PolicyBytes`] when `file` is too short for the values or
+    /// they are not 4-byte aligned in it.
+    pub fn act(&mut self, file: &[u8], obs: &[f32], action: &mut [f32]) -> Result<(), EvalError> {
+        let bytes = self
+            .values_len
+            .checked_mul(4)
+            .and_then(|n| file.get(self.values_at..self.values_at.checked_add(n)?))
+            .ok_or(EvalError::PolicyBytes)?;
+        let values: &[f32] = bytemuck::try_cast_slice(bytes).map_err(|_| EvalError::PolicyBytes)?;
+        self.run(values, obs, action)
+    }
+
+    /// The evaluation over `values` (the file's, `values_len` of them: [`Network::act`] and
+    /// [`Mlp`] check that); every offset was checked against them when the network was built.
+    fn run(&mut self, values: &[f32], obs: &[f32], action: &mut [f32]) -> Result<(), EvalError> {
+        if values.len() != self.values_len {
+            return Err(EvalError::PolicyBytes);
+        }
+        let words: &[u32] = bytemuck::cast_slice(values);
         if obs.len() != self.obs_dim {
             return Err(EvalError::ObservationLength {
                 expected: self.obs_dim,
@@ -187,7 +289,7 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
             });
         }
         let n = self.obs_dim;
-        let (mean, rest) = self.values.split_at(n);
+        let (mean, rest) = values.split_at(n);
         let scale = &rest[..n];
         for (i, x) in obs.iter().enumerate() {
             if !x.is_finite() {
@@ -201,7 +303,7 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
         let mut known_max: Option<(f32, usize, bool)> = None;
         // Ping-pong between the two buffers: even layers read `front`, odd layers read `back`.
         for (l, layer) in self.layers.iter().enumerate() {
-            let b = &self.values[layer.biases..layer.biases + layer.outputs];
+            let b = &values[layer.biases..layer.biases + layer.outputs];
             let (src, dst) = if l % 2 == 0 {
                 (&self.front, &mut self.back)
             } else {
@@ -210,7 +312,7 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
             let dst = &mut dst[..layer.outputs];
             match layer.kind {
                 Kind::F32 => {
-                    let w = &self.values[layer.weights..layer.biases];
+                    let w = &values[layer.weights..layer.biases];
                     dense(&src[..layer.inputs], w, b, dst);
                     activate(layer.activation, dst);
                     known_max = None;
@@ -228,8 +330,8 @@ impl<'a, const WIDTH: usize> Mlp<'a, WIDTH> {
                         _ => quantise_inputs(x, xw),
                     };
                     let xw = &*xw;
-                    let w = &self.words[layer.weights..scales];
-                    let s = &self.values[scales..layer.biases];
+                    let w = &words[layer.weights..scales];
+                    let s = &values[scales..layer.biases];
                     // ReLU (and the max of the outputs) fused into the kernel's rescale.
                     let relu = layer.activation == Activation::Relu;
                     let max = dense_int8(xw, w, s, b, sx, relu, dst);

@@ -29,6 +29,36 @@ pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
     })
 }
 
+/// A valid policy file on the cell's layout (one hidden layer of `hidden`) whose every output is
+/// infinite for any observation: hidden weights 0 and biases `f32::MAX`, output weights and
+/// biases `f32::MAX`, linear output. It loads, and faults at its first evaluation.
+pub fn jaco_policy_faulting(hidden: u16, seed: u64) -> Result<Vec<u8>, FormatError> {
+    let observation: Vec<(&str, u16)> = OBSERVATION_FIELDS
+        .iter()
+        .map(|f| (f.name, f.size as u16))
+        .collect();
+    let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS
+        .iter()
+        .map(|j| (j.name, j.scale, j.min, j.max))
+        .collect();
+    let widths = [hidden];
+    let (body, mut values) = dex_policy::synth::synth_parts(&SynthSpec {
+        task: Task::Stack,
+        observation: &observation,
+        action: &action,
+        hidden: &widths,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Linear,
+        seed,
+    })?;
+    let h = usize::from(hidden);
+    let w1 = 2 * OBS_DIM;
+    let b1 = w1 + OBS_DIM * h;
+    values[w1..b1].fill(0.0);
+    values[b1..].fill(f32::MAX);
+    dex_policy::encode_to_vec(&body, &values)
+}
+
 /// [`jaco_policy`] after post-training quantisation of every layer to int8 (format version 2).
 pub fn jaco_policy_int8(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
     let f32_file = jaco_policy(hidden, seed)?;
@@ -261,4 +291,38 @@ pub fn action_line(episode: u64, step: usize, action: &[f32]) -> std::string::St
     }
     line.push('\n');
     line
+}
+
+/// The request frames of a flash transfer of `image` to `node` (`crate::slots`): init, the data
+/// segments, end with the image's CRC-32 (or `crc` when given).
+pub fn flash_frames(node: u8, image: &[u8], crc: Option<u32>) -> Vec<crate::can::CanFrame> {
+    use crate::slots::{CRC32, FLASH_REQUEST_BASE, SEGMENT_BYTES};
+    let id = FLASH_REQUEST_BASE + u16::from(node);
+    let mut out = Vec::new();
+    let size = (image.len() as u32).to_le_bytes();
+    out.extend(crate::can::CanFrame::standard(
+        id,
+        &[0x01, size[0], size[1], size[2], size[3]],
+    ));
+    for (n, chunk) in image.chunks(SEGMENT_BYTES).enumerate() {
+        let mut d = [0u8; 8];
+        d[0] = 0x02;
+        d[1] = n as u8;
+        d[2..2 + chunk.len()].copy_from_slice(chunk);
+        out.extend(crate::can::CanFrame::standard(id, &d[..2 + chunk.len()]));
+    }
+    let c = crc.unwrap_or_else(|| CRC32.checksum(image)).to_le_bytes();
+    out.extend(crate::can::CanFrame::standard(
+        id,
+        &[0x03, c[0], c[1], c[2], c[3]],
+    ));
+    out
+}
+
+/// A one-byte flash request (`0x04` activate, `0x05` abort, `0x06` status, `0x07` roll back).
+pub fn flash_command(node: u8, command: u8) -> Option<crate::can::CanFrame> {
+    crate::can::CanFrame::standard(
+        crate::slots::FLASH_REQUEST_BASE + u16::from(node),
+        &[command],
+    )
 }

@@ -87,3 +87,62 @@ fn control_cycles_allocate_nothing(policy: &[u8]) {
     assert_eq!(controller.diagnostics().evaluations, 10_000);
     assert!(sent >= 30_000, "three action frames per cycle");
 }
+
+#[test]
+fn flashing_activating_and_running_a_slot_allocate_nothing() {
+    use dex_runtime::PolicySlots;
+    use dex_runtime::testkit::{flash_command, flash_frames};
+    let old = jaco_policy(&[32], 1).unwrap();
+    let new = jaco_policy_int8(&[64, 64], 2).unwrap();
+    // Frames built before watching; the regions are caller-provided.
+    let mut frames = flash_frames(0x10, &old, None);
+    frames.push(flash_command(0x10, 0x04).unwrap());
+    let mut second = flash_frames(0x10, &new, None);
+    second.push(flash_command(0x10, 0x04).unwrap());
+    second.push(flash_command(0x10, 0x07).unwrap());
+    second.push(flash_command(0x10, 0x07).unwrap());
+    second.push(flash_command(0x10, 0x06).unwrap());
+    let mut a = vec![0u64; 8 * 1024];
+    let mut b = vec![0u64; 8 * 1024];
+    let trace = observation_trace(64, 8);
+    let mut tx = [E2eSender::default(); OBS_FRAMES];
+    let clock = MockClock::new(0);
+    let mut controller = Controller::<256>::new(ControllerConfig::default());
+
+    WATCHING.with(|w| w.set(true));
+    let mut slots = PolicySlots::mount(
+        bytemuck::cast_slice_mut(&mut a),
+        bytemuck::cast_slice_mut(&mut b),
+    )
+    .unwrap();
+    controller.poll(&clock);
+    for f in &frames {
+        controller.on_frame_slots(f, &clock, &mut slots);
+    }
+    for f in &second {
+        controller.on_frame_slots(f, &clock, &mut slots);
+    }
+    controller.on_frame_slots(&nmt_frame(NmtCommand::Start, 0), &clock, &mut slots);
+    for cycle in 1..1_000u64 {
+        clock.set(cycle * 50_000);
+        controller.poll(&clock);
+        let frames = encode_observation(&trace[(cycle % 64) as usize], cycle as u8, &mut tx);
+        for f in &frames {
+            controller.on_frame_slots(f, &clock, &mut slots);
+        }
+    }
+    WATCHING.with(|w| w.set(false));
+
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::Relaxed),
+        0,
+        "heap allocations in the slot path"
+    );
+    assert_eq!(controller.state(), State::Operational);
+    assert_eq!(
+        controller.policy_info().unwrap().format_version,
+        2,
+        "the int8 file runs"
+    );
+    assert!(controller.diagnostics().evaluations >= 990);
+}
