@@ -52,6 +52,17 @@ fn to_bytes<'py>(py: Python<'py>, values: &[f32]) -> Bound<'py, PyBytes> {
     PyBytes::new(py, &raw)
 }
 
+/// What `Env.reset` hands to Python: observation bytes, the start info dict, and success, reach,
+/// grasp and stack of the start state.
+type ResetTuple<'py> = (
+    Bound<'py, PyBytes>,
+    Bound<'py, PyDict>,
+    bool,
+    bool,
+    bool,
+    bool,
+);
+
 /// (observation bytes, reward, truncated, success, reach, grasp, stack).
 type StepTuple<'py> = (Bound<'py, PyBytes>, f32, bool, bool, bool, bool, bool);
 
@@ -103,18 +114,7 @@ impl Env {
 
     /// Starts an episode from the 64-bit `seed`; returns (observation bytes, start info dict,
     /// success, reach, grasp, stack of the start state).
-    fn reset<'py>(
-        &mut self,
-        py: Python<'py>,
-        seed: u64,
-    ) -> PyResult<(
-        Bound<'py, PyBytes>,
-        Bound<'py, PyDict>,
-        bool,
-        bool,
-        bool,
-        bool,
-    )> {
+    fn reset<'py>(&mut self, py: Python<'py>, seed: u64) -> PyResult<ResetTuple<'py>> {
         let episode = &mut self.episode;
         let obs = py.detach(|| episode.reset(seed))?;
         let p = self.episode.env().predicates();

@@ -18,13 +18,7 @@ fn trainer_learns_reach_from_demonstrations() {
     let status = Command::new(env!("CARGO_BIN_EXE_trainer"))
         .current_dir(root)
         .args([
-            "train",
-            "--task",
-            "reach",
-            "--seeds",
-            "0",
-            "--quiet",
-            "--out",
+            "train", "--task", "reach", "--seeds", "0", "--quiet", "--out",
         ])
         .arg(&out)
         .status()
