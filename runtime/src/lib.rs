@@ -22,9 +22,12 @@ pub mod clock;
 pub mod controller;
 #[cfg(feature = "std")]
 pub mod dbc;
+pub mod envelope;
 pub mod error;
 mod int8;
 pub mod interface;
+pub mod jaco_kinematics;
+pub mod kinematics;
 pub mod mlp;
 pub mod observation;
 #[cfg(feature = "std")]
