@@ -138,7 +138,11 @@ fn finish(board: &mut Board, result: Result<Summary, dex_firmware::Fault>) -> ! 
     let used = stack::high_water(board.painted).max(board.stack_peak);
     let status = match result {
         Ok(s) => {
-            for (name, st) in [("mlp", s.mlp), ("controller", s.controller)] {
+            for (name, st) in [
+                ("mlp", s.mlp),
+                ("controller", s.controller),
+                ("envelope", s.envelope),
+            ] {
                 if st.count > 0 {
                     board.line(format_args!(
                         "I {name} steps={} min={} max={} mean={}",
