@@ -27,8 +27,11 @@ pub struct ChainBody {
     pub range: Option<[f64; 2]>,
 }
 
-/// The chain world -> pinch site: bodies from the root outwards, then the site's pose in the last.
-pub fn pinch_chain(scene: &Scene) -> Result<(Vec<ChainBody>, [f64; 3], [f64; 4]), EnvError> {
+/// The chain's bodies from the root outwards, then the site's position and orientation in the last.
+pub type PinchChain = (Vec<ChainBody>, [f64; 3], [f64; 4]);
+
+/// The chain world -> pinch site.
+pub fn pinch_chain(scene: &Scene) -> Result<PinchChain, EnvError> {
     let model = scene.model();
     let ids = scene.ids();
     let bad = |name: &'static str| EnvError::MissingElement {
