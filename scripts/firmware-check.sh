@@ -124,7 +124,7 @@ same_as_host() {
     local n
     n=$(grep -c '^[ACQ] ' "$1" || true)
     [ "$n" -gt 0 ] || die "$3: no action lines from QEMU"
-    diff <(grep -E '^(L|J|A|C|P|Q|R|V|F) ' "$2") <(grep -E '^(L|J|A|C|P|Q|R|V|F) ' "$1") >"$WORK/diff.txt" ||
+    diff <(grep -E '^(L|J|A|C|E|P|Q|R|V|F) ' "$2") <(grep -E '^(L|J|A|C|E|P|Q|R|V|F) ' "$1") >"$WORK/diff.txt" ||
         { head -20 "$WORK/diff.txt" >&2; die "$3: QEMU output differs from the host twin"; }
     echo "   $3: $n action lines bit-identical to the host twin"
 }
@@ -296,7 +296,8 @@ grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
 
 mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
 ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] || die "no instruction counts in the QEMU output"
+env_max=$(sed -n 's/^I envelope .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+[ -n "$mlp_max" ] && [ -n "$ctrl_max" ] && [ -n "$env_max" ] || die "no instruction counts in the QEMU output"
 policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
 footprint "$WORK/p256.elf" "$policy_bytes" ""
 stack_max=$(peak_stack "$WORK/p256.log")
@@ -317,6 +318,7 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "# FIRMWARE_BLESS=1 FIRMWARE_SLOTS_ONLY=1 scripts/firmware-check.sh)"
         echo "mlp_step $mlp_max"
         echo "controller_step $ctrl_max"
+        echo "envelope_step $env_max"
         echo "flash_code_bytes $code_flash"
         echo "static_ram_bytes $static_ram"
         echo "stack_bytes $stack_max"
@@ -335,6 +337,7 @@ fi
 [ -f "$BUDGET" ] || die "no budget file $BUDGET (FIRMWARE_BLESS=1 writes one)"
 check_budget mlp_step "$mlp_max" "instructions per step"
 check_budget controller_step "$ctrl_max" "instructions per step"
+check_budget envelope_step "$env_max" "instructions per step"
 check_budget flash_code_bytes "$code_flash" "bytes of code flash"
 check_budget static_ram_bytes "$static_ram" "bytes of static RAM"
 check_budget stack_bytes "$stack_max" "bytes of peak stack"

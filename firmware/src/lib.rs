@@ -7,7 +7,10 @@
 //!    which must equal the host's goldens (`runtime/tests/golden/actions_64.f32`);
 //! 2. through the full [`Controller`]: NMT start, then per step one control period of the mock
 //!    clock and the observation as end-to-end-protected CAN frames; one `C` line per step with the
-//!    controller's action bits and the action frames it sent.
+//!    controller's action bits and the action frames it sent (the controller runs its safety
+//!    envelope, on by default, after the policy);
+//! 3. through the safety envelope alone, on a saturated command that changes sign from step to
+//!    step: one `E` line per step with the scale, the limits that bound and the action bits.
 //!
 //! The policy may be f32 (format version 1) or int8 (version 2, post-training quantised by the
 //! exporter): the runtime's evaluator picks the kernel from the file, so both paths run int8 files
@@ -34,7 +37,8 @@ use dex_runtime::can::E2eSender;
 use dex_runtime::can::messages::{
     ACTION_BASE_ID, ACTION_FRAMES, NmtCommand, OBS_FRAMES, encode_observation, nmt_frame,
 };
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_runtime::envelope::{Envelope, EnvelopeConfig};
+use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
 use dex_runtime::{
     Controller, ControllerConfig, EvalError, FaultCode, LoadError, Mlp, MockClock, State,
 };
@@ -173,6 +177,8 @@ pub struct Summary {
     /// Feature `slots`: one flash request frame (a segment; the end's verification and the
     /// activation are the maxima).
     pub flash_request: Stats,
+    /// Instructions of one safety-envelope call ([`Envelope::apply`]) on an adversarial command.
+    pub envelope: Stats,
 }
 
 /// Hex words of an f32 slice, for report lines.
@@ -270,6 +276,7 @@ pub fn run(p: &mut impl Platform) -> Result<Summary, Fault> {
     summary.controller = replay_controller(p, &view, steps, overhead)?;
     #[cfg(feature = "slots")]
     slots::replay_slots(p, steps, overhead, &mut summary)?;
+    summary.envelope = replay_envelope(p, steps, overhead)?;
     Ok(summary)
 }
 
@@ -686,4 +693,31 @@ pub mod slots {
             .find(|r| r.standard_id() == Some(0x580 + 0x10))
             .map(|r| (r.data()[0], r.data().get(1).copied().unwrap_or(0xFF)))
     }
+/// Path 3: the safety envelope alone (`E` lines), on each observation of the trace with a
+/// saturated command whose signs change from step to step (the envelope's worst case: limits bind
+/// and the position search bisects).
+#[inline(never)]
+fn replay_envelope(p: &mut impl Platform, steps: usize, overhead: u32) -> Result<Stats, Fault> {
+    let mut stats = Stats::default();
+    let mut envelope = Envelope::new(
+        EnvelopeConfig::jaco(),
+        ControllerConfig::default().period_us,
+    );
+    for step in 0..steps {
+        let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
+        let mut action: [f32; ACT_DIM] = core::array::from_fn(|j| {
+            let joint = &ACTION_JOINTS[j];
+            if (step + j) % 3 == 0 { joint.max } else { joint.min }
+        });
+        let (outcome, n) = p.measure(|| envelope.apply(&obs, &mut action));
+        stats.add(n.map(|v| v.saturating_sub(overhead)));
+        p.line(format_args!(
+            "E {step} {:08x} {:02x} {}",
+            outcome.scale.to_bits(),
+            outcome.limits,
+            Bits(&action)
+        ));
+    }
+    p.stack_checkpoint("envelope-steps");
+    Ok(stats)
 }

@@ -143,6 +143,7 @@ fn finish(board: &mut Board, result: Result<Summary, dex_firmware::Fault>) -> ! 
                 ("controller", s.controller),
                 ("slot_controller", s.slot_controller),
                 ("flash_request", s.flash_request),
+                ("envelope", s.envelope),
             ] {
                 if st.count > 0 {
                     board.line(format_args!(

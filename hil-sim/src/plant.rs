@@ -203,6 +203,13 @@ impl Plant for MujocoPlant {
     }
 }
 
+/// Whether an emergency error code reports a fault (the controller leaves operational), not the
+/// safety envelope's warnings (0xFF10 sustained limiting, 0x0000 when it ends), after which the
+/// controller keeps answering.
+fn is_fault_emcy(code: u16) -> bool {
+    code != 0x0000 && code != dex_runtime::FaultCode::EnvelopeSustained.emcy_code()
+}
+
 /// Seed of episode `index` of a run seeded with `seed` (SplitMix64 of both): the same function as
 /// `dex_trainer::evaluate::episode_seed`, so `hil-sim run` and `trainer eval` see the same start
 /// states for the same `--seed`.
@@ -523,7 +530,9 @@ impl<'b> PlantNode<'b> {
             if self.absorb(r) == Some(self.sample) {
                 break;
             }
-            if self.emcy.len() > emcy_before || self.controller_state != Some(0x05) {
+            if self.emcy[emcy_before..].iter().any(|&c| is_fault_emcy(c))
+                || self.controller_state != Some(0x05)
+            {
                 break;
             }
         }

@@ -27,6 +27,8 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
     let bytes = aligned_copy(&policy);
     let view = PolicyView::decode(bytes.as_bytes()).unwrap();
     let mut mlp = Mlp::<256>::new(&view).unwrap();
+    // The controller node runs the safety envelope (its default) after the policy.
+    let mut envelope = dex_trainer::evaluate::eval_envelope();
     let mut plant = MujocoPlant::new(Task::Stack).unwrap();
     let mut obs = plant.reset(seed).unwrap();
     let mut total = 0.0f64;
@@ -35,6 +37,7 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
         let input: [f32; OBS_DIM] = core::array::from_fn(|i| quantise_observation(i, obs[i]));
         let mut action = [0.0f32; ACT_DIM];
         mlp.act(&input, &mut action).unwrap();
+        envelope.apply(&input, &mut action);
         let action = action.map(quantise_action);
         direct.push(action);
         let s = plant.step(&action).unwrap();
@@ -70,6 +73,8 @@ fn over_the_bus_like_trainer_eval(file: &[u8], task: Task, episodes: u64) -> usi
         seed: 1_000_000,
         threads: 1,
         can_quantisation: true,
+        // The controller node runs the safety envelope (its default).
+        envelope: true,
     };
     let expected = episode_outcomes(file, &Scene::load().unwrap(), &settings, &|| {}).unwrap();
     assert_eq!(reports.len(), expected.len());

@@ -22,6 +22,7 @@ use crate::can::messages::{
     policy_info_frame,
 };
 use crate::clock::Clock;
+use crate::envelope::{Envelope, EnvelopeConfig, EnvelopeStats};
 use crate::error::{EvalError, LoadError};
 use crate::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS};
 use crate::mlp::{Mlp, Network};
@@ -91,6 +92,13 @@ pub enum FaultCode {
     BusOff,
     /// A newly activated policy's first evaluation failed: the previous slot is active again.
     PolicyRolledBack,
+    /// The safety envelope limited the policy's action for more than
+    /// [`EnvelopeConfig::sustained_cycles`] consecutive cycles. A warning in emergency frames
+    /// only (0xFF10 when the run starts, 0x0000 with this fault code when it ends): never
+    /// latched, the controller stays operational and keeps limiting.
+    EnvelopeSustained,
+    /// NMT start refused: the envelope's configuration is invalid ([`EnvelopeConfig::validate`]).
+    EnvelopeConfig,
 }
 
 impl FaultCode {
@@ -105,6 +113,8 @@ impl FaultCode {
             FaultCode::NoPolicy => 5,
             FaultCode::BusOff => 6,
             FaultCode::PolicyRolledBack => 7,
+            FaultCode::EnvelopeSustained => 16,
+            FaultCode::EnvelopeConfig => 17,
         }
     }
 
@@ -120,12 +130,14 @@ impl FaultCode {
             FaultCode::NoPolicy => 0xFF05,
             FaultCode::BusOff => 0x8140,
             FaultCode::PolicyRolledBack => 0xFF07,
+            FaultCode::EnvelopeSustained => 0xFF10,
+            FaultCode::EnvelopeConfig => 0xFF11,
         }
     }
 }
 
 /// Controller settings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ControllerConfig {
     /// CANopen node id (1..=127).
     pub node_id: u8,
@@ -137,6 +149,8 @@ pub struct ControllerConfig {
     pub heartbeat_cycles: u32,
     /// Largest accepted alive-counter jump on observation frames (1: no frame may be lost).
     pub e2e_max_delta: u8,
+    /// The safety envelope applied to every policy action ([`crate::envelope`]); on by default.
+    pub envelope: EnvelopeConfig,
 }
 
 impl Default for ControllerConfig {
@@ -147,6 +161,7 @@ impl Default for ControllerConfig {
             watchdog_cycles: 3,
             heartbeat_cycles: 10,
             e2e_max_delta: 1,
+            envelope: EnvelopeConfig::jaco(),
         }
     }
 }
@@ -222,6 +237,7 @@ pub struct Controller<'p, const WIDTH: usize> {
     announce: bool,
     bus_off: bool,
     diag: Diagnostics,
+    envelope: Envelope,
 }
 
 impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
@@ -249,6 +265,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             announce: false,
             bus_off: false,
             diag: Diagnostics::default(),
+            envelope: Envelope::new(cfg.envelope, cfg.period_us),
         }
     }
 
@@ -271,6 +288,16 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// Diagnostic counters.
     pub fn diagnostics(&self) -> &Diagnostics {
         &self.diag
+    }
+
+    /// What the safety envelope did so far.
+    pub fn envelope_stats(&self) -> &EnvelopeStats {
+        self.envelope.stats()
+    }
+
+    /// The safety envelope's status bits (`envelope::status`, heartbeat byte 4).
+    pub fn envelope_status(&self) -> u8 {
+        self.envelope.status()
     }
 
     /// The last action sent (zero velocity outside operational).
@@ -579,6 +606,11 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
                     self.push_emcy(out);
                     return;
                 }
+                if self.cfg.envelope.validate().is_err() {
+                    self.fault = FaultCode::EnvelopeConfig;
+                    self.push_emcy(out);
+                    return;
+                }
                 let had_fault = self.fault != FaultCode::None;
                 self.fault = FaultCode::None;
                 if had_fault {
@@ -676,9 +708,16 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         }
         match result {
             Ok(()) => {
+                let limited = self.envelope.apply(&self.obs, &mut action);
                 self.action = action;
                 for f in encode_action(&self.action, sample, &mut self.action_tx) {
                     let _ = out.push(f);
+                }
+                // After the action frames, so a plant waiting for them reads them first.
+                if limited.sustained_started {
+                    self.push_emcy_code(FaultCode::EnvelopeSustained, out);
+                } else if limited.sustained_ended {
+                    self.push_emcy_with(0x0000, FaultCode::EnvelopeSustained, out);
                 }
             }
             Err(_) => {
@@ -725,6 +764,9 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
 
     fn enter(&mut self, state: State, out: &mut Outbox) {
         if self.state != state {
+            if self.state == State::Operational {
+                self.envelope.end_run();
+            }
             self.state = state;
             self.push_heartbeat(out);
             if matches!(state, State::PreOperational | State::Operational) {
@@ -749,6 +791,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             self.heartbeat_counter,
             self.state.code(),
             self.fault.code(),
+            self.envelope.status(),
         );
         self.heartbeat_counter = self.heartbeat_counter.wrapping_add(1);
         let _ = out.push(f);
@@ -760,9 +803,14 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
 
     /// Emergency for `fault` (its error code and fault code) with the current state.
     fn push_emcy_code(&mut self, fault: FaultCode, out: &mut Outbox) {
+        self.push_emcy_with(fault.emcy_code(), fault, out);
+    }
+
+    /// Emergency with `error_code`, `fault`'s fault code and the current state.
+    fn push_emcy_with(&mut self, error_code: u16, fault: FaultCode, out: &mut Outbox) {
         let f = emcy_frame(
             self.cfg.node_id,
-            fault.emcy_code(),
+            error_code,
             fault.code(),
             self.state.code(),
             &mut self.emcy_tx,

@@ -25,9 +25,12 @@ pub mod clock;
 pub mod controller;
 #[cfg(feature = "std")]
 pub mod dbc;
+pub mod envelope;
 pub mod error;
 mod int8;
 pub mod interface;
+pub mod jaco_kinematics;
+pub mod kinematics;
 pub mod mlp;
 pub mod observation;
 pub mod slots;

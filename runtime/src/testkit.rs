@@ -234,7 +234,7 @@ pub fn can_vectors() -> Vec<CanVector> {
         data: f.data().to_vec(),
         signals,
     });
-    let f = heartbeat_frame(0x10, 0x05, 42, 2, 0);
+    let f = heartbeat_frame(0x10, 0x05, 42, 2, 0, 0x05);
     out.push(CanVector {
         message: "HEARTBEAT".to_string(),
         id: f.standard_id().unwrap_or(0),
@@ -244,6 +244,13 @@ pub fn can_vectors() -> Vec<CanVector> {
             ("counter".to_string(), 42.0),
             ("state".to_string(), 2.0),
             ("fault_code".to_string(), 0.0),
+            // 0x05: enabled, limited by a joint position limit in the last cycle.
+            ("envelope_enabled".to_string(), 1.0),
+            ("envelope_sustained".to_string(), 0.0),
+            ("envelope_joint_limit".to_string(), 1.0),
+            ("envelope_table".to_string(), 0.0),
+            ("envelope_workspace".to_string(), 0.0),
+            ("envelope_acceleration".to_string(), 0.0),
         ],
     });
     let f = nmt_frame(NmtCommand::Start, 0x10);

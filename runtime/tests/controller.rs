@@ -9,6 +9,7 @@ use dex_runtime::can::messages::{
     ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES,
     POLICY_INFO_ID, decode_action_frame, encode_observation, nmt_frame, quantise_observation,
 };
+use dex_runtime::envelope::{Envelope, EnvelopeConfig};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_runtime::testkit::{AlignedBytes, aligned_copy, jaco_policy, observation_trace};
 use dex_runtime::{
@@ -139,6 +140,8 @@ fn operational_evaluates_every_complete_observation_exactly_like_the_evaluator()
     let file = policy();
     let view = PolicyView::decode(file.as_bytes()).unwrap();
     let mut reference = Mlp::<64>::new(&view).unwrap();
+    // The controller's action is the evaluator's behind the safety envelope.
+    let mut envelope = Envelope::new(EnvelopeConfig::jaco(), PERIOD as u32);
     let mut c = operational(&view, &clock);
     let mut plant = Plant::new();
     for obs in observation_trace(30, 1) {
@@ -152,11 +155,19 @@ fn operational_evaluates_every_complete_observation_exactly_like_the_evaluator()
             );
         }
         let out = c.on_frame(&frames[OBS_FRAMES - 1], &clock);
-        assert_eq!(ids(&out), [0x280, 0x281, 0x282]);
+        // The action frames, then at most the envelope's emergency (random observations put
+        // the arm anywhere, so it limits).
+        assert_eq!(ids(&out)[..3], [0x280, 0x281, 0x282]);
+        assert!(
+            ids(&out)[3..]
+                .iter()
+                .all(|&id| id == EMCY_BASE_ID + u16::from(NODE))
+        );
         let sent = actions(&out).unwrap();
         let quantised: [f32; OBS_DIM] = core::array::from_fn(|i| quantise_observation(i, obs[i]));
         let mut want = [0.0; ACT_DIM];
         reference.act(&quantised, &mut want).unwrap();
+        envelope.apply(&quantised, &mut want);
         assert_eq!(c.last_action().map(f32::to_bits), want.map(f32::to_bits));
         for (s, w) in sent.iter().zip(want) {
             assert!((s - w).abs() <= 0.0005 + 1e-6, "action quantised to 1e-3");
@@ -394,7 +405,7 @@ fn emcy(out: &Outbox) -> Vec<&CanFrame> {
         .collect()
 }
 
-fn heartbeat(out: &Outbox) -> Option<[u8; 4]> {
+fn heartbeat(out: &Outbox) -> Option<[u8; 5]> {
     out.iter()
         .find(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))
         .map(|f| f.data().try_into().unwrap())
@@ -453,7 +464,7 @@ fn bus_off_in_operational_sends_the_safe_action_then_emcy_8140_and_stays_preoper
     let mut rx = E2eReceiver::new(1);
     assert_eq!(rx.check(EMCY_BASE_ID + u16::from(NODE), e), E2eStatus::Ok);
     assert_eq!(heartbeat(&out).unwrap()[0], 0x7F);
-    assert_eq!(heartbeat(&out).unwrap()[2..], [1, 6]);
+    assert_eq!(heartbeat(&out).unwrap()[2..4], [1, 6]);
     assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
     assert!(
         c.on_bus_recovered().is_empty(),

@@ -201,6 +201,7 @@ fn main() -> anyhow::Result<ExitCode> {
         seed: 1_000_000,
         threads: args.threads,
         can_quantisation: true,
+        envelope: false,
     };
     let oa = episode_outcomes(&f32_file, &scene, &settings, &|| {})?;
     let ob = episode_outcomes(&int8_file, &scene, &settings, &|| {})?;

@@ -12,7 +12,8 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use dex_policy::PolicyView;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
-use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
+use dex_runtime::envelope::{Envelope, EnvelopeConfig};
+use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 
 use crate::env::{EnvConfig, EnvError, JacoEnv, Scene};
 
@@ -130,6 +131,9 @@ pub struct EvalSettings {
     pub threads: usize,
     /// Quantise observations and actions exactly as the CAN bus does (the SIL loop's view).
     pub can_quantisation: bool,
+    /// Apply the controller's safety envelope (`dex_runtime::envelope`, the Jaco defaults) to
+    /// every action, after the policy and before the CAN quantisation, as the controller does.
+    pub envelope: bool,
 }
 
 /// One episode through the runtime evaluator; returns (return, success).
@@ -138,8 +142,9 @@ pub fn run_episode(
     env: &mut JacoEnv,
     seed: u64,
     can_quantisation: bool,
+    envelope: Option<&mut Envelope>,
 ) -> Result<(f64, bool), EvalError> {
-    run_episode_recorded(mlp, env, seed, can_quantisation, None)
+    run_episode_recorded(mlp, env, seed, can_quantisation, envelope, None)
 }
 
 /// [`run_episode`], pushing every applied physical command (after the CAN quantisation when on)
@@ -149,6 +154,7 @@ pub fn run_episode_recorded(
     env: &mut JacoEnv,
     seed: u64,
     can_quantisation: bool,
+    mut envelope: Option<&mut Envelope>,
     mut record: Option<&mut Vec<[f32; ACT_DIM]>>,
 ) -> Result<(f64, bool), EvalError> {
     let mut obs = env.reset(seed)?;
@@ -161,6 +167,9 @@ pub fn run_episode_recorded(
         };
         let mut physical = [0.0f32; ACT_DIM];
         mlp.act(&input, &mut physical)?;
+        if let Some(e) = envelope.as_deref_mut() {
+            e.apply(&input, &mut physical);
+        }
         if can_quantisation {
             physical = physical.map(quantise_action);
         }
@@ -174,6 +183,11 @@ pub fn run_episode_recorded(
             return Ok((total, out.success));
         }
     }
+}
+
+/// The envelope `trainer eval --envelope` applies: the controller's default.
+pub fn eval_envelope() -> Envelope {
+    Envelope::new(EnvelopeConfig::jaco(), CONTROL_PERIOD_US)
 }
 
 /// Decodes a policy file (4-byte aligned) and checks that its observation and action layout is the
@@ -219,6 +233,7 @@ pub fn episode_traces(
     let view = decode_jaco_policy(aligned.as_bytes())?;
     let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
     let mut env = JacoEnv::new(scene, settings.env);
+    let mut envelope = settings.envelope.then(eval_envelope);
     (0..settings.episodes)
         .map(|i| {
             let mut actions = Vec::new();
@@ -228,6 +243,7 @@ pub fn episode_traces(
                 &mut env,
                 seed,
                 settings.can_quantisation,
+                envelope.as_mut(),
                 Some(&mut actions),
             )?;
             Ok((ret, ok, actions))
@@ -258,6 +274,7 @@ pub fn episode_outcomes(
                 s.spawn(|| {
                     let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
                     let mut env = JacoEnv::new(scene, settings.env);
+                    let mut envelope = settings.envelope.then(eval_envelope);
                     let mut out = Vec::new();
                     loop {
                         let i = next.fetch_add(1, Ordering::Relaxed);
@@ -267,7 +284,13 @@ pub fn episode_outcomes(
                         let seed = episode_seed(settings.seed, u64::from(i));
                         out.push((
                             i,
-                            run_episode(&mut mlp, &mut env, seed, settings.can_quantisation)?,
+                            run_episode(
+                                &mut mlp,
+                                &mut env,
+                                seed,
+                                settings.can_quantisation,
+                                envelope.as_mut(),
+                            )?,
                         ));
                         on_episode();
                     }

@@ -311,6 +311,7 @@ pub fn run_imitation(
         seed: SELECTION_SEED,
         threads: cfg.eval_threads,
         can_quantisation: true,
+        envelope: false,
     };
     let log_path = dir.join("eval.jsonl");
     let mut records: Vec<EvalRecord> = match std::fs::read_to_string(&log_path) {

@@ -683,6 +683,7 @@ fn select_best(
         seed: SELECTION_SEED,
         threads: s.eval_threads,
         can_quantisation: true,
+        envelope: false,
     };
     let e = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
     let now = BestPolicy {
@@ -767,6 +768,7 @@ fn export_and_evaluate(
         seed: 1_000_000,
         threads: s.eval_threads,
         can_quantisation: true,
+        envelope: false,
     };
     let eval = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
     info.success_rate = Some(eval.success_rate() as f32);

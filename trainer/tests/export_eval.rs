@@ -92,6 +92,7 @@ fn exported_policy_acts_like_the_learner_and_runs_deterministically() {
         seed: 11,
         threads: 2,
         can_quantisation: true,
+        envelope: false,
     };
     let a = evaluate_policy_file(&file, &scene, &settings, &|| {}).unwrap();
     let b = evaluate_policy_file(&file, &scene, &settings, &|| {}).unwrap();
@@ -114,6 +115,7 @@ fn evaluation_refuses_a_policy_for_another_cell() {
         seed: 0,
         threads: 1,
         can_quantisation: false,
+        envelope: false,
     };
     let err = evaluate_policy_file(other, &scene, &settings, &|| {}).unwrap_err();
     assert!(err.to_string().contains("does not match"), "{err}");

@@ -176,6 +176,7 @@ fn the_reach_recipe_learns_reach() {
         seed: 4_000_000,
         threads: 2,
         can_quantisation: true,
+        envelope: false,
     };
     let e = dex_trainer::evaluate::evaluate_policy_file(&file, &scene, &settings, &|| {})
         .expect("eval");

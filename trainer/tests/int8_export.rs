@@ -119,6 +119,7 @@ fn quantisation_aware_policy_succeeds_like_its_f32_file_start_by_start() {
         seed: 1_000_000,
         threads: 2,
         can_quantisation: true,
+        envelope: false,
     };
     let a = episode_outcomes(TRAINED_FOR_INT8, &scene, &settings, &|| {}).unwrap();
     let b = episode_outcomes(&int8, &scene, &settings, &|| {}).unwrap();
@@ -206,6 +207,7 @@ fn trainer_eval_runs_int8_files_deterministically() {
         seed: 1_000_000,
         threads: 2,
         can_quantisation: true,
+        envelope: false,
     };
     let a = evaluate_policy_file(&int8, &scene, &settings, &|| {}).unwrap();
     let b = evaluate_policy_file(&int8, &scene, &settings, &|| {}).unwrap();

@@ -33,6 +33,7 @@ fn check(file: &str, task: Task, at_least: u32) {
         seed: CI_SEED,
         threads: 2,
         can_quantisation: true,
+        envelope: false,
     };
     let e = evaluate_policy_file(&bytes, &scene, &settings, &|| {}).unwrap();
     assert!(

@@ -8,7 +8,7 @@
 //! | 0x200..0x20E | observation k | plant | E2E | CRC, counter + sample nibble, 3 x i16 LE |
 //! | 0x280..0x282 | action k | controller | E2E | CRC, counter + sample nibble, 3 x i16 LE |
 //! | 0x290 | policy info | controller | E2E | CRC, counter, layout hash u32 LE, format version, task |
-//! | 0x700 + node | heartbeat | controller | no (CANopen) | CANopen state, counter, state, fault code |
+//! | 0x700 + node | heartbeat | controller | no (CANopen) | CANopen state, counter, state, fault code, envelope status |
 //!
 //! A signal value is `raw * lsb` with `raw` a little-endian i16; raw -32768 (0x8000) means
 //! "not available" and decodes to NaN, which is how a plant reports a non-finite value.
@@ -218,11 +218,19 @@ pub fn policy_info_frame(
     raw_frame(POLICY_INFO_ID, &data)
 }
 
-/// Heartbeat frame: CANopen state byte, counter, controller state and fault code.
-pub fn heartbeat_frame(node: u8, canopen_state: u8, counter: u8, state: u8, fault: u8) -> CanFrame {
+/// Heartbeat frame: CANopen state byte, counter, controller state, fault code and the safety
+/// envelope's status bits (`envelope::status`).
+pub fn heartbeat_frame(
+    node: u8,
+    canopen_state: u8,
+    counter: u8,
+    state: u8,
+    fault: u8,
+    envelope: u8,
+) -> CanFrame {
     raw_frame(
         HEARTBEAT_BASE_ID + u16::from(node),
-        &[canopen_state, counter, state, fault],
+        &[canopen_state, counter, state, fault, envelope],
     )
 }
 

@@ -8,9 +8,12 @@
 
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS};
 
+use nalgebra::{Rotation3, Vector2, Vector3, Vector6};
+
 use super::environment::{GRASP_DEPTH, JacoEnv};
 use super::kinematics::{
-    Vec6, arm_jacobian, damped_least_squares, down_rotation, norm3, pinch_pose, pose_error,
+    angular, arm_jacobian, damped_least_squares, down_rotation, linear, pinch_pose, pose_error,
+    xmat_rotation,
 };
 use super::scene::{ARM_JOINTS, BRICK_HEIGHT};
 use super::tasks::Task;
@@ -93,7 +96,7 @@ impl Demonstrator {
     pub fn restart_from_state(&mut self, env: &JacoEnv) {
         let ids = env.scene().ids();
         let data = env.data();
-        let (pinch, _) = pinch_pose(data, ids);
+        let pinch: [f64; 3] = pinch_pose(data, ids).0.into();
         let b1 = data
             .xpos()
             .get(ids.brick1_body)
@@ -105,7 +108,7 @@ impl Demonstrator {
             .sum::<f64>()
             / 3.0
             > PRESHAPE + 0.2;
-        let held = closed && norm3(&sub(&b1, &pinch)) < 0.04 && b1[2] > 0.005;
+        let held = closed && Vector3::from(sub(&b1, &pinch)).norm() < 0.04 && b1[2] > 0.005;
         let phase = match (self.task, held) {
             (Task::Reach, _) | (_, false) => Phase::Approach,
             (Task::Grasp, true) => Phase::Lift,
@@ -122,17 +125,18 @@ impl Demonstrator {
     fn enter(&mut self, phase: Phase, env: &JacoEnv) {
         self.phase = phase;
         self.timer = 0;
-        let (pinch, mat) = pinch_pose(env.data(), env.scene().ids());
-        self.anchor = pinch;
-        self.anchor_yaw = yaw_of(&mat);
+        let (pinch, rot) = pinch_pose(env.data(), env.scene().ids());
+        self.anchor = pinch.into();
+        self.anchor_yaw = yaw_of(&rot);
     }
 
     /// The action for the environment's current state.
     pub fn act(&mut self, env: &JacoEnv) -> [f32; ACT_DIM] {
         let ids = env.scene().ids();
         let data = env.data();
-        let (pinch, pinch_mat) = pinch_pose(data, ids);
-        let hand_yaw = yaw_of(&pinch_mat);
+        let (pinch, pinch_rot) = pinch_pose(data, ids);
+        let pinch: [f64; 3] = pinch.into();
+        let hand_yaw = yaw_of(&pinch_rot);
         let b1 = data
             .xpos()
             .get(ids.brick1_body)
@@ -153,14 +157,15 @@ impl Demonstrator {
             .get(ids.brick2_body)
             .copied()
             .unwrap_or([0.0; 9]);
-        let grasp_yaw = nearest_equivalent(yaw_of(&m1), hand_yaw);
+        let grasp_yaw = nearest_equivalent(yaw_of(&xmat_rotation(&m1)), hand_yaw);
         let stack_site = [
             b2[0] + m2[2] * BRICK_HEIGHT,
             b2[1] + m2[5] * BRICK_HEIGHT,
             b2[2] + m2[8] * BRICK_HEIGHT,
         ];
         // Hand yaw that turns brick 1 (held) to brick 2's yaw.
-        let place_yaw = hand_yaw + wrap_half_pi(yaw_of(&m2) - yaw_of(&m1));
+        let place_yaw =
+            hand_yaw + wrap_half_pi(yaw_of(&xmat_rotation(&m2)) - yaw_of(&xmat_rotation(&m1)));
         let finger_vel: Vec<f64> = ids.joint_dof[ARM_JOINTS..]
             .iter()
             .map(|&a| data.qvel().get(a).copied().unwrap_or(0.0))
@@ -173,7 +178,7 @@ impl Demonstrator {
         let preshape = (PRESHAPE - finger_pos.iter().sum::<f64>() / 3.0).clamp(-1.0, 1.0) * 4.0;
         let preshape = preshape.clamp(-1.0, 1.0);
         // Brick 1 counts as in the hand while its origin stays within 4 cm of the pinch site.
-        let in_hand = norm3(&sub(&b1, &pinch)) < 0.04;
+        let in_hand = Vector3::from(sub(&b1, &pinch)).norm() < 0.04;
         self.timer += 1;
         let mut speed = MAX_SPEED;
 
@@ -183,13 +188,13 @@ impl Demonstrator {
                     let t = [b1[0], b1[1], b1[2] + GRASP_DEPTH + APPROACH_HEIGHT];
                     let e = sub(&t, &pinch);
                     if self.task != Task::Reach
-                        && norm3(&e) < 0.015
+                        && Vector3::from(e).norm() < 0.015
                         && (grasp_yaw - hand_yaw).abs() < 0.08
                     {
                         self.enter(Phase::Descend, env);
                         continue;
                     }
-                    if self.task == Task::Reach && norm3(&e) < 0.03 {
+                    if self.task == Task::Reach && Vector3::from(e).norm() < 0.03 {
                         self.enter(Phase::Descend, env);
                         continue;
                     }
@@ -198,7 +203,7 @@ impl Demonstrator {
                 Phase::Descend => {
                     let t = [b1[0], b1[1], b1[2] + GRASP_DEPTH];
                     if self.task != Task::Reach
-                        && (norm3(&sub(&t, &pinch)) < 0.005 || self.timer > 25)
+                        && (Vector3::from(sub(&t, &pinch)).norm() < 0.005 || self.timer > 25)
                     {
                         self.enter(Phase::Close, env);
                         continue;
@@ -239,7 +244,7 @@ impl Demonstrator {
                         stack_site[2] + CARRY_CLEARANCE,
                     ];
                     let e = sub(&want, &b1);
-                    if norm3(&e[..2]) < 0.004
+                    if Vector2::new(e[0], e[1]).norm() < 0.004
                         && e[2].abs() < 0.01
                         && (place_yaw - hand_yaw).abs() < 0.05
                     {
@@ -249,7 +254,7 @@ impl Demonstrator {
                     break (add(&pinch, &e), place_yaw, 1.0);
                 }
                 Phase::Lower => {
-                    let xy = norm3(&[stack_site[0] - b1[0], stack_site[1] - b1[1], 0.0]);
+                    let xy = Vector2::new(stack_site[0] - b1[0], stack_site[1] - b1[1]).norm();
                     let dz = b1[2] - stack_site[2];
                     if (xy < 0.003 && dz < 0.007) || self.timer > 40 {
                         self.enter(Phase::Release, env);
@@ -287,15 +292,20 @@ impl Demonstrator {
 /// `max_speed` fast (fingers left at 0).
 pub(crate) fn track(env: &JacoEnv, target: &[f64; 3], yaw: f64, max_speed: f64) -> [f32; ACT_DIM] {
     let ids = env.scene().ids();
-    let e = pose_error(env.data(), ids, target, &down_rotation(yaw));
-    let mut twist: Vec6 = [0.0; 6];
-    let lin = norm3(&e[..3]) * POSITION_GAIN;
+    let e = pose_error(
+        env.data(),
+        ids,
+        &Vector3::from(*target),
+        &down_rotation(yaw),
+    );
+    let mut twist = Vector6::zeros();
+    let lin = linear(&e).norm() * POSITION_GAIN;
     let s = if lin > max_speed {
         max_speed / lin
     } else {
         1.0
     };
-    let ang = norm3(&e[3..]) * ORIENTATION_GAIN;
+    let ang = angular(&e).norm() * ORIENTATION_GAIN;
     let sr = if ang > MAX_ANGULAR_SPEED {
         MAX_ANGULAR_SPEED / ang
     } else {
@@ -320,9 +330,9 @@ pub(crate) fn track(env: &JacoEnv, target: &[f64; 3], yaw: f64, max_speed: f64) 
     action
 }
 
-/// Yaw of a frame's x axis (row-major matrix).
-pub(crate) fn yaw_of(m: &[f64; 9]) -> f64 {
-    m[3].atan2(m[0])
+/// Yaw of a frame's x axis.
+pub(crate) fn yaw_of(m: &Rotation3<f64>) -> f64 {
+    m[(1, 0)].atan2(m[(0, 0)])
 }
 
 /// Wraps an angle difference into (-pi/2, pi/2] (a brick looks the same turned by pi).

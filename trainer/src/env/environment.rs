@@ -216,7 +216,7 @@ impl JacoEnv {
     /// The positions the rewards are computed from.
     pub fn reward_state(&self) -> RewardState {
         let ids = self.scene.ids();
-        let (pinch, _) = pinch_pose(&self.data, ids);
+        let pinch: [f64; 3] = pinch_pose(&self.data, ids).0.into();
         let xpos = self.data.xpos();
         RewardState {
             pinch,
@@ -312,8 +312,13 @@ impl JacoEnv {
                 }
             }
         }
-        let (pos_err, rot_err) =
-            solve_ik(&mut self.data, &ids, &target, &down_rotation(hand_yaw), 100);
+        let (pos_err, rot_err) = solve_ik(
+            &mut self.data,
+            &ids,
+            &nalgebra::Vector3::from(target),
+            &down_rotation(hand_yaw),
+            100,
+        );
         if pos_err > 0.005 || rot_err > 0.05 {
             return Ok(false);
         }

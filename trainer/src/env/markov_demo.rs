@@ -28,10 +28,11 @@ use super::demo::{
     sub, track, yaw_of,
 };
 use super::environment::{GRASP_DEPTH, JacoEnv};
-use super::kinematics::{norm3, pinch_pose};
+use super::kinematics::{pinch_pose, xmat_rotation};
 use super::scene::{ARM_JOINTS, BRICK_HEIGHT};
 use super::start_states::Demonstration;
 use super::tasks::Task;
+use nalgebra::{Vector2, Vector3};
 
 /// Mean finger angle above which the hand counts as closed (gripping holds 1.0-1.2).
 pub const CLOSED: f64 = 0.8;
@@ -111,8 +112,9 @@ impl MarkovDemonstrator {
         let data = env.data();
         let body = |b: usize| data.xpos().get(b).copied().unwrap_or([0.0; 3]);
         let mat = |b: usize| data.xmat().get(b).copied().unwrap_or([0.0; 9]);
-        let (pinch, pinch_mat) = pinch_pose(data, ids);
-        let hand_yaw = yaw_of(&pinch_mat);
+        let (pinch, pinch_rot) = pinch_pose(data, ids);
+        let pinch: [f64; 3] = pinch.into();
+        let hand_yaw = yaw_of(&pinch_rot);
         let (b1, b2) = (body(ids.brick1_body), body(ids.brick2_body));
         let (m1, m2) = (mat(ids.brick1_body), mat(ids.brick2_body));
         let finger_joints = &ids.joint_qpos[ARM_JOINTS..];
@@ -128,7 +130,7 @@ impl MarkovDemonstrator {
         let preshape = ((PRESHAPE - f_mean) * 4.0).clamp(-1.0, 1.0);
         let gentle_open = preshape.max(-0.4);
         let closed = f_mean > CLOSED;
-        let in_hand = norm3(&sub(&b1, &pinch)) < IN_HAND;
+        let in_hand = Vector3::from(sub(&b1, &pinch)).norm() < IN_HAND;
         let held = in_hand && closed && b1[2] > LIFTED;
         let site = [
             b2[0] + m2[2] * BRICK_HEIGHT,
@@ -136,13 +138,13 @@ impl MarkovDemonstrator {
             b2[2] + m2[8] * BRICK_HEIGHT,
         ];
         let on_stack = env.reward_state().predicates().stack;
-        let site_xy = norm3(&[site[0] - b1[0], site[1] - b1[1], 0.0]);
+        let site_xy = Vector2::new(site[0] - b1[0], site[1] - b1[1]).norm();
         let placed = site_xy < PLACE_XY && b1[2] - site[2] < PLACE_DZ;
         let stacking = matches!(self.task, Task::Stack | Task::StackInHand);
 
         let grasp_point = [b1[0], b1[1], b1[2] + GRASP_DEPTH];
         let to_grasp = sub(&grasp_point, &pinch);
-        let grasp_yaw = nearest_equivalent(yaw_of(&m1), hand_yaw);
+        let grasp_yaw = nearest_equivalent(yaw_of(&xmat_rotation(&m1)), hand_yaw);
         let up_from_here = |z: f64| [pinch[0], pinch[1], z];
 
         let (phase, target, yaw, speed, finger_cmd) = if stacking && on_stack && f_mean < OPENED {
@@ -193,7 +195,9 @@ impl MarkovDemonstrator {
                 };
                 (phase, add(&pinch, &sub(&want, &b1)), hand_yaw, speed, 1.0)
             }
-        } else if self.task != Task::Reach && norm3(&to_grasp) < AT_GRASP && f_mean > PRESHAPE - 0.1
+        } else if self.task != Task::Reach
+            && Vector3::from(to_grasp).norm() < AT_GRASP
+            && f_mean > PRESHAPE - 0.1
         {
             // At the grasp point: close, and lift once the fingers have settled on the brick.
             if closed && finger_speed < SETTLED {
@@ -209,7 +213,7 @@ impl MarkovDemonstrator {
             }
         } else {
             // Approach: above the brick at the approach height, coming down as the hand aligns.
-            let xy = norm3(&[to_grasp[0], to_grasp[1], 0.0]);
+            let xy = Vector2::new(to_grasp[0], to_grasp[1]).norm();
             let yaw_err = (grasp_yaw - hand_yaw).abs();
             let w = (2.0 * (xy / DESCEND_XY).max(yaw_err / DESCEND_YAW) - 1.0).clamp(0.0, 1.0);
             let w = if self.task == Task::Reach { 0.0 } else { w };

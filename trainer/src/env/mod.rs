@@ -19,6 +19,7 @@
 pub mod demo;
 pub mod environment;
 pub mod error;
+pub mod fk_constants;
 pub mod kinematics;
 pub mod markov_demo;
 pub mod observation;

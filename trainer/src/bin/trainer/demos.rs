@@ -250,6 +250,7 @@ pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
             seed: 1_000_000,
             threads: 2,
             can_quantisation: true,
+            envelope: false,
         };
         let e = evaluate_policy_file(&file, &scene, &settings, &|| {})?;
         println!(

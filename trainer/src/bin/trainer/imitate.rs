@@ -185,6 +185,7 @@ pub fn imitate(a: &ImitateArgs) -> anyhow::Result<()> {
                 seed: 1_000_000,
                 threads: cfg.eval_threads,
                 can_quantisation: true,
+                envelope: false,
             };
             let e = evaluate_policy_file(&bytes, &scene, &settings, &|| {})?;
             println!(

@@ -221,6 +221,10 @@ struct EvalArgs {
     /// Skip the CAN quantisation of observations and actions.
     #[arg(long)]
     no_can_quantisation: bool,
+    /// Apply the controller's safety envelope (its default settings) to every action, as the
+    /// controller node does (docs/runtime.md).
+    #[arg(long)]
+    envelope: bool,
     /// Also write every applied command to this file, one line per step (`episode step a0 ...
     /// a8`; one thread), to compare with `hil-sim plant --actions` over the bus.
     #[arg(long)]
@@ -306,6 +310,7 @@ fn export_int8(
         seed: 1_000_000,
         threads: settings.eval_threads,
         can_quantisation: true,
+        envelope: false,
     };
     let e = evaluate_policy_file(&draft, &scene, &eval_settings, &|| {})?;
     let file = quantise_policy_file(&eq.file, Some((e.success_rate() as f32, e.episodes)))?;

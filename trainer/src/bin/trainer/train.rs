@@ -422,6 +422,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         seed: args.seed,
         threads: args.threads,
         can_quantisation: !args.no_can_quantisation,
+        envelope: args.envelope,
     };
     let pb = bar(
         u64::from(args.episodes),
