@@ -693,6 +693,8 @@ pub mod slots {
             .find(|r| r.standard_id() == Some(0x580 + 0x10))
             .map(|r| (r.data()[0], r.data().get(1).copied().unwrap_or(0xFF)))
     }
+}
+
 /// Path 3: the safety envelope alone (`E` lines), on each observation of the trace with a
 /// saturated command whose signs change from step to step (the envelope's worst case: limits bind
 /// and the position search bisects).
@@ -707,7 +709,11 @@ fn replay_envelope(p: &mut impl Platform, steps: usize, overhead: u32) -> Result
         let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
         let mut action: [f32; ACT_DIM] = core::array::from_fn(|j| {
             let joint = &ACTION_JOINTS[j];
-            if (step + j) % 3 == 0 { joint.max } else { joint.min }
+            if (step + j) % 3 == 0 {
+                joint.max
+            } else {
+                joint.min
+            }
         });
         let (outcome, n) = p.measure(|| envelope.apply(&obs, &mut action));
         stats.add(n.map(|v| v.saturating_sub(overhead)));

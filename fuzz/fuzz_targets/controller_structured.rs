@@ -77,6 +77,7 @@ use dex_runtime::can::messages::{
     from_raw, to_raw,
 };
 use dex_runtime::controller::PolicyInfo;
+use dex_runtime::envelope::EnvelopeConfig;
 use dex_runtime::interface::{
     ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS, quantity_of,
 };
@@ -894,7 +895,8 @@ impl<'p> Run<'p> {
                     task: data[7],
                 });
             } else if id == HEARTBEAT_BASE_ID + u16::from(node) {
-                assert_eq!(data.len(), 4, "heartbeat length");
+                assert_eq!(data.len(), 5, "heartbeat length");
+                assert_eq!(data[4], 0, "envelope status byte with the envelope off");
                 let canopen = [
                     State::Boot,
                     State::PreOperational,
@@ -1198,6 +1200,12 @@ fuzz_target!(|input: Input| {
         watchdog_cycles: u32::from(input.watchdog_cycles % 7),
         heartbeat_cycles: u32::from(input.heartbeat_cycles % 21),
         e2e_max_delta: input.e2e_max_delta % 15,
+        // The model predicts the policy's actions bit for bit: the safety envelope, which rescales
+        // them from the kinematics, is off here (its own tests: runtime/tests/envelope.rs).
+        envelope: EnvelopeConfig {
+            enabled: false,
+            ..EnvelopeConfig::default()
+        },
     };
     // Storage for verified files that match no prepared one; it outlives the controller.
     let mut pool: [Vec<u64>; POOL_SLOTS] = Default::default();

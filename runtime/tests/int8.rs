@@ -135,7 +135,12 @@ fn controller_runs_int8_files_like_the_evaluator() {
     let view = PolicyView::decode(file.as_bytes()).unwrap();
     let mut reference = Mlp::<64>::new(&view).unwrap();
     let clock = MockClock::new(0);
-    let mut ctrl = Controller::<64>::new(ControllerConfig::default());
+    // The envelope off: the actions must be the evaluator's, bit for bit (the trace's joint
+    // angles are random, so the envelope would rescale the arm's commands).
+    let mut ctrl = Controller::<64>::new(ControllerConfig {
+        envelope: dex_runtime::envelope::EnvelopeConfig::disabled(),
+        ..ControllerConfig::default()
+    });
     ctrl.poll(&clock);
     ctrl.load_policy(&view).unwrap();
     assert_eq!(ctrl.policy_info().unwrap().format_version, 2);
