@@ -29,9 +29,11 @@ const DEMOS_TRANSITIONS: u64 = 20_000;
 const REACH_DEMOS_TRANSITIONS: u64 = 10_000;
 const REACH_DEMOS_CHECKPOINT_EVERY: u64 = 2_500;
 
-/// Whether any flag of the learner's components (or a preset) is given.
+/// Whether any flag of the learner's components (or a preset) is given. Quantisation-aware
+/// training counts: it does not go with demonstrations, so it keeps the paper's learner.
 fn learner_flags(a: &TrainArgs) -> bool {
     a.preset.is_some()
+        || a.quantise_aware_from.is_some()
         || a.demos.is_some()
         || a.record_demos.is_some()
         || a.demo_fraction.is_some()
@@ -494,6 +496,7 @@ mod tests {
             &["--task", "grasp", "--preset", "paper"][..],
             &["--task", "grasp", "--td3"][..],
             &["--task", "reach", "--td3"][..],
+            &["--task", "reach", "--quantise-aware-from", "100"][..],
         ] {
             let s = settings(flags);
             assert_eq!(s.record_demos, 0, "{flags:?}");
