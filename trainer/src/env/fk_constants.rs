@@ -153,11 +153,15 @@ pub fn runtime_constants(scene: &Scene) -> Result<String, EnvError> {
         s,
         "/// Which arm joints the model limits (the others are continuous).\npub const JOINT_LIMITED: [bool; 6] = {limited:?};\n"
     );
-    let rows: Vec<String> = ranges.iter().map(|r| arr(r)).collect();
+    // One row a line, as rustfmt lays the array out (the file is committed formatted).
+    let rows: Vec<String> = ranges
+        .iter()
+        .map(|r| format!("    {},\n", arr(r)))
+        .collect();
     let _ = writeln!(
         s,
-        "/// The model's range of each arm joint, radians (`[0.0, 0.0]` where not limited).\npub const JOINT_RANGE: [[f32; 2]; 6] = [{}];",
-        rows.join(", ")
+        "/// The model's range of each arm joint, radians (`[0.0, 0.0]` where not limited).\npub const JOINT_RANGE: [[f32; 2]; 6] = [\n{}];",
+        rows.concat()
     );
     Ok(s)
 }
