@@ -8,16 +8,24 @@ use dex_policy::{Activation, FormatError, Task};
 
 use crate::interface::{ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS, quantity_of};
 
-/// A random-weight policy file on the cell's layout with the given hidden widths.
-pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
-    let observation: Vec<(&str, u16)> = OBSERVATION_FIELDS
+/// The cell's observation fields (name, size) and action joints (name, scale, min, max), as the
+/// synthetic policy builders take them.
+#[allow(clippy::type_complexity)]
+fn cell_layout() -> (Vec<(&'static str, u16)>, Vec<(&'static str, f32, f32, f32)>) {
+    let observation = OBSERVATION_FIELDS
         .iter()
         .map(|f| (f.name, f.size as u16))
         .collect();
-    let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS
+    let action = ACTION_JOINTS
         .iter()
         .map(|j| (j.name, j.scale, j.min, j.max))
         .collect();
+    (observation, action)
+}
+
+/// A random-weight policy file on the cell's layout with the given hidden widths.
+pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
+    let (observation, action) = cell_layout();
     synth_policy(&SynthSpec {
         task: Task::Stack,
         observation: &observation,
@@ -33,14 +41,7 @@ pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
 /// infinite for any observation: hidden weights 0 and biases `f32::MAX`, output weights and
 /// biases `f32::MAX`, linear output. It loads, and faults at its first evaluation.
 pub fn jaco_policy_faulting(hidden: u16, seed: u64) -> Result<Vec<u8>, FormatError> {
-    let observation: Vec<(&str, u16)> = OBSERVATION_FIELDS
-        .iter()
-        .map(|f| (f.name, f.size as u16))
-        .collect();
-    let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS
-        .iter()
-        .map(|j| (j.name, j.scale, j.min, j.max))
-        .collect();
+    let (observation, action) = cell_layout();
     let widths = [hidden];
     let (body, mut values) = dex_policy::synth::synth_parts(&SynthSpec {
         task: Task::Stack,
