@@ -78,10 +78,10 @@ use dex_runtime::can::messages::{
 };
 use dex_runtime::controller::PolicyInfo;
 use dex_runtime::envelope::EnvelopeConfig;
-use dex_runtime::interface::{
-    ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS, quantity_of,
+use dex_runtime::interface::{ACT_DIM, CONTROL_PERIOD_US, OBS_DIM, quantity_of};
+use dex_runtime::testkit::{
+    AlignedBytes, aligned_copy, cell_layout, jaco_policy, jaco_policy_int8,
 };
-use dex_runtime::testkit::{AlignedBytes, aligned_copy, jaco_policy, jaco_policy_int8};
 use dex_runtime::{
     Clock, Controller, ControllerConfig, Diagnostics, FaultCode, LoadError, Mlp, MockClock, Outbox,
     State,
@@ -116,14 +116,7 @@ fn jaco_file(
     output: Activation,
     edit: impl FnOnce(&mut Body<'_>, &mut Vec<f32>),
 ) -> Vec<u8> {
-    let observation: Vec<(&str, u16)> = OBSERVATION_FIELDS
-        .iter()
-        .map(|f| (f.name, f.size as u16))
-        .collect();
-    let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS
-        .iter()
-        .map(|j| (j.name, j.scale, j.min, j.max))
-        .collect();
+    let (observation, action) = cell_layout();
     let spec = SynthSpec {
         task: Task::Stack,
         observation: &observation,

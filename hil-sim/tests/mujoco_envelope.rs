@@ -15,8 +15,8 @@ use dex_policy::encode_to_vec;
 use dex_policy::synth::{SplitMix64, SynthSpec, synth_parts};
 use dex_policy::{Activation, PolicyView, Task as PolicyTask};
 use dex_runtime::envelope::EnvelopeConfig;
-use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
-use dex_runtime::testkit::{aligned_copy, jaco_policy};
+use dex_runtime::interface::{ACT_DIM, OBS_DIM, OBSERVATION_FIELDS};
+use dex_runtime::testkit::{aligned_copy, cell_layout, jaco_policy};
 use dex_trainer::env::Task;
 
 fn offset(name: &str) -> usize {
@@ -37,14 +37,7 @@ fn linear_policy(
     weight: impl Fn(usize, usize, &mut SplitMix64) -> f32,
     bias: impl Fn(usize, &mut SplitMix64) -> f32,
 ) -> Vec<u8> {
-    let observation: Vec<(&str, u16)> = OBSERVATION_FIELDS
-        .iter()
-        .map(|f| (f.name, f.size as u16))
-        .collect();
-    let action: Vec<(&str, f32, f32, f32)> = ACTION_JOINTS
-        .iter()
-        .map(|j| (j.name, j.scale, j.min, j.max))
-        .collect();
+    let (observation, action) = cell_layout();
     let spec = SynthSpec {
         task: PolicyTask::Stack,
         observation: &observation,

@@ -8,10 +8,14 @@ use dex_policy::{Activation, FormatError, Task};
 
 use crate::interface::{ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS, quantity_of};
 
-/// The cell's observation fields (name, size) and action joints (name, scale, min, max), as the
-/// synthetic policy builders take them.
-#[allow(clippy::type_complexity)]
-fn cell_layout() -> (Vec<(&'static str, u16)>, Vec<(&'static str, f32, f32, f32)>) {
+/// An observation field of a synthetic policy's layout: (name, size).
+pub type ObservationField = (&'static str, u16);
+/// An action joint of a synthetic policy's layout: (name, scale, min, max).
+pub type ActionJoint = (&'static str, f32, f32, f32);
+
+/// The cell's observation fields and action joints, as `dex_policy::synth::SynthSpec` takes them
+/// (for tests and fuzz targets that build their own synthetic policies on the cell's layout).
+pub fn cell_layout() -> (Vec<ObservationField>, Vec<ActionJoint>) {
     let observation = OBSERVATION_FIELDS
         .iter()
         .map(|f| (f.name, f.size as u16))
