@@ -1,9 +1,10 @@
 //! A policy file run through the runtime's evaluator, as `trainer eval` and a controller run it.
 
 use dex_policy::PolicyView;
-use dex_runtime::Mlp;
+use dex_runtime::Network;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_runtime::testkit::AlignedBytes;
 use dex_trainer::evaluate::{EVAL_WIDTH, decode_jaco_policy, physical_to_env_action};
 
 use crate::error::{Error, Result};
@@ -45,34 +46,37 @@ pub struct PolicyInfo {
     pub eval_episodes: u32,
 }
 
-/// A decoded, checked policy and its evaluator.
+/// A decoded, checked policy and its evaluator. It owns an aligned copy of the file, and the
+/// evaluator ([`Network`], the runtime's network without the borrow) reads the weights from it at
+/// every step, so dropping the Python object frees the file.
 #[derive(Debug)]
 pub struct LoadedPolicy {
-    mlp: Mlp<'static, EVAL_WIDTH>,
+    file: AlignedBytes,
+    net: Network<EVAL_WIDTH>,
     info: PolicyInfo,
     task: dex_trainer::env::Task,
 }
 
 impl LoadedPolicy {
-    /// Decodes `file` (any alignment) and checks it against the Jaco cell's layout. The evaluator
-    /// borrows the weights, so a valid file is kept (leaked) for the rest of the process, as
-    /// `dex_trainer::policy_demo` does: load a policy once, not per episode. Invalid files are not
-    /// kept.
+    /// Decodes `file` (any alignment) and checks it against the Jaco cell's layout.
     pub fn from_bytes(file: &[u8]) -> Result<Self> {
-        let probe = dex_runtime::testkit::aligned_copy(file);
-        decode_jaco_policy(probe.as_bytes())?;
-        let aligned: &'static dex_runtime::testkit::AlignedBytes = Box::leak(Box::new(probe));
-        let view = decode_jaco_policy(aligned.as_bytes())?;
-        let mlp = Mlp::new(&view).map_err(|e| Error::Policy(e.into()))?;
-        let task = match view.body().task {
-            dex_policy::Task::Reach => dex_trainer::env::Task::Reach,
-            dex_policy::Task::Grasp => dex_trainer::env::Task::Grasp,
-            dex_policy::Task::StackInHand => dex_trainer::env::Task::StackInHand,
-            dex_policy::Task::Stack => dex_trainer::env::Task::Stack,
+        let aligned = dex_runtime::testkit::aligned_copy(file);
+        let (net, info, task) = {
+            let view = decode_jaco_policy(aligned.as_bytes())?;
+            let net =
+                Network::new(&view, aligned.as_bytes()).map_err(|e| Error::Policy(e.into()))?;
+            let task = match view.body().task {
+                dex_policy::Task::Reach => dex_trainer::env::Task::Reach,
+                dex_policy::Task::Grasp => dex_trainer::env::Task::Grasp,
+                dex_policy::Task::StackInHand => dex_trainer::env::Task::StackInHand,
+                dex_policy::Task::Stack => dex_trainer::env::Task::Stack,
+            };
+            (net, describe(&view, file, task), task)
         };
         Ok(LoadedPolicy {
-            info: describe(&view, file, task),
-            mlp,
+            file: aligned,
+            net,
+            info,
             task,
         })
     }
@@ -111,8 +115,8 @@ impl LoadedPolicy {
             }
         });
         let mut physical = [0.0f32; ACT_DIM];
-        self.mlp
-            .act(&input, &mut physical)
+        self.net
+            .act(self.file.as_bytes(), &input, &mut physical)
             .map_err(|e| Error::Policy(e.into()))?;
         if can_quantisation {
             physical = physical.map(quantise_action);
