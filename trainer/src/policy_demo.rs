@@ -2,29 +2,32 @@
 //! paper allows a previously trained policy in place of the scripted demonstrator). It acts through
 //! the runtime's evaluator, exactly as a controller would run it.
 
-use dex_runtime::Mlp;
+use std::sync::Arc;
+
+use dex_runtime::Network;
 use dex_runtime::interface::ACT_DIM;
+use dex_runtime::testkit::AlignedBytes;
 
 use crate::env::{Demonstration, Demonstrator, EnvError, JacoEnv, MarkovDemonstrator};
 use crate::evaluate::{EVAL_WIDTH, EvalError, decode_jaco_policy, physical_to_env_action};
 
-/// A policy file driving demonstrations.
+/// A policy file driving demonstrations: an aligned copy of the file, shared by the clones (one
+/// per worker), and the runtime's evaluator over it.
 #[derive(Debug, Clone)]
 pub struct PolicyDemonstration {
-    mlp: Mlp<'static, EVAL_WIDTH>,
+    file: Arc<AlignedBytes>,
+    net: Network<EVAL_WIDTH>,
 }
 
 impl PolicyDemonstration {
-    /// Decodes and checks `file` (any alignment). The evaluator borrows the weights for the rest of
-    /// the process: the aligned copy is leaked once per call, so load a demonstrator once per run
-    /// and clone it per worker.
+    /// Decodes and checks `file` (any alignment).
     pub fn from_file_bytes(file: &[u8]) -> Result<Self, EvalError> {
-        let aligned: &'static dex_runtime::testkit::AlignedBytes =
-            Box::leak(Box::new(dex_runtime::testkit::aligned_copy(file)));
-        let view = decode_jaco_policy(aligned.as_bytes())?;
-        Ok(Self {
-            mlp: Mlp::new(&view)?,
-        })
+        let aligned = Arc::new(dex_runtime::testkit::aligned_copy(file));
+        let net = {
+            let view = decode_jaco_policy(aligned.as_bytes())?;
+            Network::new(&view, aligned.as_bytes())?
+        };
+        Ok(Self { file: aligned, net })
     }
 }
 
@@ -34,8 +37,8 @@ impl Demonstration for PolicyDemonstration {
 
     fn act(&mut self, env: &JacoEnv) -> Result<[f32; ACT_DIM], EnvError> {
         let mut physical = [0.0f32; ACT_DIM];
-        self.mlp
-            .act(env.observation(), &mut physical)
+        self.net
+            .act(self.file.as_bytes(), env.observation(), &mut physical)
             .map_err(|e| EnvError::StartScheme(format!("demonstration policy: {e}")))?;
         Ok(physical_to_env_action(&physical))
     }
