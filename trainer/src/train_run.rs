@@ -478,7 +478,9 @@ impl TrainPlan {
         let mut trainer = Trainer::new(run, OBS_DIM, ACT_DIM)?;
         let mut rank = WorkerRank::new(transport, cfg, &trainer)?;
         // After rank 0's state: it has recorded the demonstrations by then.
-        rank.start(&mut trainer)?;
+        if !rank.start(&mut trainer)? {
+            return Ok((rank.stats(), trainer.progress()));
+        }
         if let Some(d) = load_demonstrations(s, &dir)? {
             trainer.set_demonstrations(d)?;
         }

@@ -88,7 +88,9 @@ pub fn run_point_mass<T: Transport>(
         ))
     } else {
         let mut rank = WorkerRank::new(transport, cfg, &trainer)?;
-        rank.start(&mut trainer)?;
+        if !rank.start(&mut trainer)? {
+            return Ok((None, rank.stats(), trainer.progress()));
+        }
         let stats = rank.run(&mut trainer, env, &stop, &mut |_| {})?;
         Ok((None, stats, trainer.progress()))
     }

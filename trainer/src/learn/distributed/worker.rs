@@ -23,6 +23,9 @@ const STREAM_RANK: u64 = 1 << 30;
 /// demonstrations first).
 const START_WAIT: Duration = Duration::from_secs(3600);
 
+/// The least a worker rank waits for the answer to a push before it gives the server up.
+const SERVER_WAIT: Duration = Duration::from_secs(600);
+
 /// The shared state as this rank last synchronised it, per network.
 #[derive(Debug, Clone)]
 struct Base {
@@ -99,19 +102,16 @@ impl<'t, T: Transport> WorkerRank<'t, T> {
     }
 
     /// Waits (up to an hour, or the rank timeout if longer) for the server's first state and puts it into `trainer`;
-    /// gives the rank's threads their own generator streams.
-    pub fn start(&mut self, trainer: &mut Trainer) -> Result<(), LearnError> {
+    /// gives the rank's threads their own generator streams. Returns false when the server ends
+    /// the run instead (it had nothing left to train).
+    pub fn start(&mut self, trainer: &mut Trainer) -> Result<bool, LearnError> {
         let t0 = Instant::now();
         let params = loop {
             if let Some(m) = self.receive()? {
                 match m {
                     Message::Params(p) => break p,
-                    Message::Stop => {
-                        return Err(DistributedError::Config {
-                            why: "the server stopped the run before it started",
-                        }
-                        .into());
-                    }
+                    // The run was already over (a resumed finished run): nothing to do.
+                    Message::Stop => return Ok(false),
                     Message::Push(_) => self.stats.refused += 1,
                 }
             }
@@ -158,7 +158,7 @@ impl<'t, T: Transport> WorkerRank<'t, T> {
             let stream = STREAM_RANK + (rank << 12) + i as u64;
             w.rng = Rng::derive(seed ^ params.updates.rotate_left(17), stream);
         }
-        Ok(())
+        Ok(true)
     }
 
     /// Trains until the server says stop (or `stop` is raised); returns the exchange counters.
@@ -315,7 +315,17 @@ impl<T: Transport> RankSync for WorkerRank<'_, T> {
                 Message::Push(_) => self.stats.refused += 1,
             }
         }
-        if self.awaiting.is_none() {
+        if let Some(t) = self.awaiting {
+            // Rank 0 pauses for selections and checkpoints; far longer means it is gone.
+            let limit = (self.cfg.rank_timeout * 10).max(SERVER_WAIT);
+            if t.elapsed() > limit {
+                return Err(DistributedError::NoServer {
+                    rank: self.transport.rank(),
+                    waited_s: t.elapsed().as_secs_f64(),
+                }
+                .into());
+            }
+        } else {
             let made = shared
                 .updates()
                 .load(Ordering::Relaxed)
