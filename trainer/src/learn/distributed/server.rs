@@ -11,7 +11,8 @@
 //!
 //! Faults: a rank that sends nothing for [`DistributedConfig::rank_timeout`], or does not take a
 //! send for that long, is lost ([`DistributedError::RankLost`]); the caller writes a checkpoint.
-//! A refused message is counted ([`ExchangeStats::refused`]) and answered with nothing.
+//! A refused message is counted ([`ExchangeStats::refused`]) and never applied; its sender gets
+//! the current state as if its push had been empty (it then drops what it pushed).
 
 use super::message::{self, Message, NetParams, Params, Push};
 use super::worker::{net_beta2, net_sizes};
@@ -109,7 +110,14 @@ impl<'t, T: Transport> Server<'t, T> {
                         self.stats.exchanges += 1;
                         self.send_params(trainer, from)?;
                     }
-                    _ => self.stats.refused += 1,
+                    _ => {
+                        // Refused, never applied; the rank still gets the state, so it drops
+                        // what it pushed and goes on from the server's state.
+                        self.stats.refused += 1;
+                        if from > 0 && from < self.transport.size() {
+                            self.send_params(trainer, from)?;
+                        }
+                    }
                 }
             }
             for r in 1..self.transport.size() {
