@@ -129,7 +129,7 @@ mod tests {
         }
         fn send(&mut self, to: usize, mut bytes: Vec<u8>) -> Result<(), DistributedError> {
             self.sent += 1;
-            if self.corrupt_every > 0 && self.sent % self.corrupt_every == 0 {
+            if self.corrupt_every > 0 && self.sent.is_multiple_of(self.corrupt_every) {
                 let i = bytes.len() / 2;
                 bytes[i] ^= 0x40;
             }
