@@ -22,6 +22,21 @@ if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
     || { echo "error: cannot install fonts-dejavu-core (apt-get; needs root)" >&2; exit 1; }
 fi
 
+step "Debian packages (Open MPI and libclang for the trainer's mpi feature)"
+# `--all-features` builds the trainer's `mpi` feature (the mpi crate's bindings need libclang)
+# and trainer/tests/distributed.rs runs mpirun.
+mpi_pkgs="openmpi-bin libopenmpi-dev libclang-dev"
+missing=$(for p in $mpi_pkgs; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || echo "$p"
+done)
+if [ -n "$missing" ]; then
+  # shellcheck disable=SC2086
+  { apt-get install -y --no-install-recommends $missing >/dev/null 2>&1 \
+    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends $missing >/dev/null; }; } \
+    || { echo "error: cannot install $(echo $missing) (apt-get; needs root)" >&2; exit 1; }
+fi
+need mpirun "install Open MPI (Debian: apt-get install openmpi-bin libopenmpi-dev)"
+
 step "MuJoCo and Jaco assets (scripts/setup-mujoco.sh)"
 bash scripts/setup-mujoco.sh
 

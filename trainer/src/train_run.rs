@@ -22,7 +22,10 @@ use crate::env::{Demonstrator, EnvError, Scene, StartStates};
 use crate::evaluate::{EvalError, EvalSettings, PolicyEval, evaluate_policy_file};
 use crate::export::{ExportError, ExportInfo, ObsNormalisation, export_actor};
 use crate::jaco::JacoLearnEnv;
-use crate::learn::{DemoBuffer, EvalRecord, Event, LearnError, Progress, Trainer};
+use crate::learn::distributed::server::Server;
+use crate::learn::distributed::worker::WorkerRank;
+use crate::learn::distributed::{DistributedConfig, DistributedError, ExchangeStats, Transport};
+use crate::learn::{DemoBuffer, EvalRecord, Event, LearnError, Progress, RunSummary, Trainer};
 use crate::policy_demo::{DemoSource, PolicyDemonstration};
 use crate::run_lock::{RunLock, RunLockError};
 use crate::run_plots::{RunPlotError, plot_run};
@@ -165,6 +168,12 @@ pub enum TrainRunError {
     /// Loading or recording demonstrations failed.
     #[error(transparent)]
     Demos(#[from] DemoError),
+    /// The settings do not go with a distributed run.
+    #[error("not supported in a distributed run: {why}")]
+    NotDistributable {
+        /// What and why.
+        why: &'static str,
+    },
 }
 
 /// An [`TrainRunError::Io`] maker for `path`.
@@ -345,6 +354,168 @@ impl TrainPlan {
     }
 }
 
+/// Rank 0 of a distributed run as the pipeline drives it ([`TrainPlan::train_distributed`]).
+pub trait ParameterServer {
+    /// Serves the worker ranks until the run's transitions reach `until` (see
+    /// [`Server::serve`]).
+    fn serve(
+        &mut self,
+        trainer: &mut Trainer,
+        until: u64,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+    ) -> Result<RunSummary, LearnError>;
+    /// Tells the worker ranks the run is over.
+    fn finish(&mut self) -> Result<(), LearnError>;
+    /// The exchange counters (refused messages among them).
+    fn stats(&self) -> ExchangeStats;
+}
+
+impl<T: Transport> ParameterServer for Server<'_, T> {
+    fn serve(
+        &mut self,
+        trainer: &mut Trainer,
+        until: u64,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+    ) -> Result<RunSummary, LearnError> {
+        Server::serve(self, trainer, until, stop, on_event)
+    }
+    fn finish(&mut self) -> Result<(), LearnError> {
+        Server::finish(self)
+    }
+    fn stats(&self) -> ExchangeStats {
+        Server::stats(self)
+    }
+}
+
+/// Refuses settings whose state is per process and would silently diverge across ranks.
+fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
+    let no = |why| Err(TrainRunError::NotDistributable { why });
+    if s.seeds.len() != 1 {
+        return no("one seed per distributed run (start one run per seed)");
+    }
+    if s.run.obs_norm.enabled && !s.run.obs_norm.frozen_from_demos {
+        return no("running observation statistics (use frozen statistics from demonstrations)");
+    }
+    if s.run.quantise.aware_from.is_some() {
+        return no("quantisation-aware training (it starts at a rank-local transition count)");
+    }
+    Ok(())
+}
+
+impl TrainPlan {
+    /// Rank 0 of a distributed run: the run folder's pipeline of [`TrainPlan::train`] (one seed),
+    /// with `server` collecting the transitions and updates from the worker ranks instead of local
+    /// threads. A lost rank ends the run with a checkpoint and the error. The exchange counters go
+    /// to the seed folder's `distributed.json`.
+    pub fn train_distributed(
+        &self,
+        scene: &Scene,
+        resume: bool,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(TrainEvent<'_>),
+        server: &mut dyn ParameterServer,
+    ) -> Result<bool, TrainRunError> {
+        let s = &self.settings;
+        check_distributable(s)?;
+        std::fs::create_dir_all(&s.out).map_err(|source| TrainRunError::Create {
+            path: s.out.clone(),
+            source,
+        })?;
+        write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
+        on_event(TrainEvent::Started { settings: s });
+        let seed = s.seeds[0];
+        let done = train_seed_with(
+            s,
+            seed,
+            scene,
+            &self.starts,
+            resume,
+            stop,
+            on_event,
+            Some(&mut *server),
+        );
+        let stats = server.stats();
+        let dir = s.out.join(format!("seed-{seed}"));
+        write_atomic(
+            &dir.join("distributed.json"),
+            serde_json::to_string(&stats)?.as_bytes(),
+        )?;
+        if !done? {
+            server.finish()?;
+            return Ok(false);
+        }
+        let plotted = plot_run(&s.out, &mut |dir, lines| {
+            on_event(TrainEvent::MalformedLog { dir, lines });
+        });
+        match plotted {
+            Ok(files) => on_event(TrainEvent::Plotted { files: &files }),
+            Err(error) => on_event(TrainEvent::PlotFailed { error }),
+        }
+        Ok(true)
+    }
+
+    /// A worker rank of a distributed run: W worker threads on this rank's environments, their
+    /// updates exchanged with rank 0 through `transport`, until rank 0 ends the run. Writes
+    /// nothing into the run folder; reads the demonstrations rank 0 recorded or was given.
+    pub fn train_worker_rank<T: Transport>(
+        &self,
+        scene: &Scene,
+        transport: &mut T,
+        cfg: DistributedConfig,
+        stop: &AtomicBool,
+    ) -> Result<(ExchangeStats, Progress), TrainRunError> {
+        let s = &self.settings;
+        check_distributable(s)?;
+        let seed = s.seeds[0];
+        let dir = s.out.join(format!("seed-{seed}"));
+        let mut run = s.run.clone();
+        run.seed = seed;
+        // Each worker rank evaluates on its own episodes: together at the local run's rate.
+        let ranks = transport.size().saturating_sub(1).max(1) as u64;
+        run.eval.every_episodes = run.eval.every_episodes.saturating_mul(ranks);
+        let mut trainer = Trainer::new(run, OBS_DIM, ACT_DIM)?;
+        let mut rank = WorkerRank::new(transport, cfg, &trainer)?;
+        // After rank 0's state: it has recorded the demonstrations by then.
+        if !rank.start(&mut trainer)? {
+            return Ok((rank.stats(), trainer.progress()));
+        }
+        if let Some(d) = load_demonstrations(s, &dir)? {
+            trainer.set_demonstrations(d)?;
+        }
+        let env_cfg = s.reward.env_config(s.task.task());
+        let starts = &self.starts;
+        let stats = rank.run(
+            &mut trainer,
+            |_| JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone()),
+            stop,
+            &mut |_| {},
+        )?;
+        Ok((stats, trainer.progress()))
+    }
+}
+
+/// The demonstrations of a worker rank: the files rank 0 uses (given, or recorded into the seed
+/// folder by rank 0 before the ranks started).
+fn load_demonstrations(s: &TrainSettings, dir: &Path) -> Result<Option<DemoBuffer>, TrainRunError> {
+    use crate::demos::{DemoSet, demo_buffer};
+    if !s.run.demos.uses_demos() {
+        return Ok(None);
+    }
+    let env_cfg = s.reward.env_config(s.task.task());
+    let paths = if s.demo_files.is_empty() {
+        vec![dir.join("demos.dxdm")]
+    } else {
+        s.demo_files.clone()
+    };
+    let mut sets = Vec::new();
+    for path in paths {
+        sets.push((DemoSet::load(&path)?, path));
+    }
+    Ok(Some(demo_buffer(&sets, s.task.task(), env_cfg.reward)?))
+}
+
 /// [`TrainPlan::new`] then [`TrainPlan::train`].
 pub fn train_runs(
     settings: TrainSettings,
@@ -421,7 +592,7 @@ fn demonstrations(
     Ok(Some(demo_buffer(&sets, s.task.task(), env_cfg.reward)?))
 }
 
-/// Trains one seed (the caller holds the run lock); returns false if interrupted.
+/// Trains one seed on local threads; returns false if interrupted.
 fn train_seed(
     s: &TrainSettings,
     seed: u64,
@@ -430,6 +601,22 @@ fn train_seed(
     resume: bool,
     stop: &AtomicBool,
     on_event: &mut dyn FnMut(TrainEvent<'_>),
+) -> Result<bool, TrainRunError> {
+    train_seed_with(s, seed, scene, starts, resume, stop, on_event, None)
+}
+
+/// Trains one seed, holding its run lock, on local threads or (with `server`) on the worker
+/// ranks of a distributed run; returns false if interrupted.
+#[allow(clippy::too_many_arguments)]
+fn train_seed_with(
+    s: &TrainSettings,
+    seed: u64,
+    scene: &Scene,
+    starts: &StartStates<DemoSource>,
+    resume: bool,
+    stop: &AtomicBool,
+    on_event: &mut dyn FnMut(TrainEvent<'_>),
+    mut server: Option<&mut dyn ParameterServer>,
 ) -> Result<bool, TrainRunError> {
     let dir = s.out.join(format!("seed-{seed}"));
     std::fs::create_dir_all(&dir).map_err(io_at(&dir))?;
@@ -504,20 +691,39 @@ fn train_seed(
         }
         let target = (done / s.checkpoint_every + 1) * s.checkpoint_every;
         let mut write_err = None;
-        let summary = trainer.run(
-            |_| JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone()),
-            target.min(s.transitions),
-            stop,
-            &mut |ev| match ev {
-                Event::Eval(record) => {
-                    if let Err(e) = writeln!(log, "{}", record.to_json_line()) {
-                        write_err = Some(e);
-                    }
-                    on_event(TrainEvent::Eval { seed, record });
+        let mut forward = |ev: Event<'_>| match ev {
+            Event::Eval(record) => {
+                if let Err(e) = writeln!(log, "{}", record.to_json_line()) {
+                    write_err = Some(e);
                 }
-                Event::Progress(progress) => on_event(TrainEvent::Progress { seed, progress }),
+                on_event(TrainEvent::Eval { seed, record });
+            }
+            Event::Progress(progress) => on_event(TrainEvent::Progress { seed, progress }),
+        };
+        let until = target.min(s.transitions);
+        let summary = match server.as_deref_mut() {
+            None => trainer.run(
+                |_| JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone()),
+                until,
+                stop,
+                &mut forward,
+            )?,
+            Some(srv) => match srv.serve(&mut trainer, until, stop, &mut forward) {
+                Ok(summary) => summary,
+                Err(LearnError::Distributed(e @ DistributedError::RankLost { .. })) => {
+                    // What the server holds is a consistent state: keep it, then fail.
+                    let _ = log.flush();
+                    trainer
+                        .save(&ckpt)
+                        .map_err(|source| TrainRunError::SaveCheckpoint {
+                            path: ckpt.clone(),
+                            source,
+                        })?;
+                    return Err(LearnError::Distributed(e).into());
+                }
+                Err(e) => return Err(e.into()),
             },
-        )?;
+        };
         if let Some(source) = write_err {
             return Err(TrainRunError::AppendLog {
                 path: log_path,
@@ -543,6 +749,10 @@ fn train_seed(
             on_event(TrainEvent::Stopped { seed });
             return Ok(false);
         }
+    }
+    if let Some(srv) = server {
+        // The worker ranks stop before the export's evaluation takes the cores.
+        srv.finish()?;
     }
     on_event(TrainEvent::Trained { seed });
     let out = dir.join("policy.dxpl");

@@ -16,6 +16,9 @@
 //! - [`trainer`]: [`Trainer`] runs W worker threads (W = 1 is DPG-R) with R updates per environment step,
 //!   evaluates on the paper's schedule and streams [`EvalRecord`]s; [`checkpoint`] saves and restores it.
 //!
+//! - [`distributed`]: ADPG-R across processes (a parameter server and worker ranks; MPI behind
+//!   the `mpi` feature).
+//!
 //! Not here: the command line, plots and policy export (they use [`Trainer::actor`] and
 //! [`nets::Mlp::layers`]), and the Jaco environment itself.
 
@@ -24,6 +27,7 @@ pub mod bc;
 pub mod checkpoint;
 pub mod ddpg;
 pub mod demo_data;
+pub mod distributed;
 pub mod env;
 pub mod kernel;
 pub mod n_step;
@@ -100,4 +104,7 @@ pub enum LearnError {
     /// A checkpoint file is damaged, from another version, or from an incompatible configuration.
     #[error("bad checkpoint: {0}")]
     BadCheckpoint(&'static str),
+    /// A distributed run failed (a rank lost, MPI unusable, bad settings).
+    #[error(transparent)]
+    Distributed(#[from] distributed::DistributedError),
 }

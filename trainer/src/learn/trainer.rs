@@ -544,6 +544,56 @@ impl Trainer {
         E: Env,
         F: Fn(usize) -> E + Sync,
     {
+        self.run_synced(make_env, until_transitions, stop, on_event, None)
+    }
+
+    /// Pre-trains on the demonstrations where configured
+    /// ([`DemoDataConfig::pretrain_updates`]) and collects nothing: a distributed run's server does
+    /// this once before its worker ranks start.
+    pub(crate) fn pretrain_only(
+        &mut self,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+    ) -> Result<(), LearnError> {
+        if self.cfg.demos.pretrain_updates == 0 || self.progress().transitions > 0 {
+            return Ok(());
+        }
+        let make_env = |_| super::env::PointMass::new(super::env::PointMassConfig::default());
+        self.run_inner(make_env, 0, stop, on_event, None, true)
+            .map(|_| ())
+    }
+
+    /// [`Trainer::run`] with a [`RankSync`] polled on the calling thread about every millisecond
+    /// (a distributed worker rank's exchange with the parameter server; see
+    /// [`super::distributed`]). The run also ends when the sync asks for it.
+    pub(crate) fn run_synced<E, F>(
+        &mut self,
+        make_env: F,
+        until_transitions: u64,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+        sync: Option<&mut dyn RankSync>,
+    ) -> Result<RunSummary, LearnError>
+    where
+        E: Env,
+        F: Fn(usize) -> E + Sync,
+    {
+        self.run_inner(make_env, until_transitions, stop, on_event, sync, false)
+    }
+
+    fn run_inner<E, F>(
+        &mut self,
+        make_env: F,
+        until_transitions: u64,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+        mut sync: Option<&mut dyn RankSync>,
+        pretrain_only: bool,
+    ) -> Result<RunSummary, LearnError>
+    where
+        E: Env,
+        F: Fn(usize) -> E + Sync,
+    {
         if self.cfg.demos.uses_demos() && self.demos.is_none() {
             return Err(LearnError::Config {
                 field: "demos.fraction",
@@ -560,7 +610,7 @@ impl Trainer {
             demos,
         } = self;
         let per: Vec<u64> = workers.iter().map(|w| w.transitions).collect();
-        if per.iter().sum::<u64>() >= until_transitions {
+        if per.iter().sum::<u64>() >= until_transitions && !pretrain_only {
             // Already done (e.g. resuming a finished run): collect nothing.
             return Ok(RunSummary {
                 records: Vec::new(),
@@ -606,11 +656,13 @@ impl Trainer {
             evals: AtomicU64::new(counters.evals),
             stop,
             failed: AtomicBool::new(false),
+            ended: AtomicBool::new(false),
             until: until_transitions,
             start: Instant::now(),
             base_wall: counters.wall_s,
         };
         let mut records = Vec::new();
+        let mut sync_err = None;
         // Pre-training on the demonstrations, on the calling thread before any worker starts
         // (continued where a stop left it: no transition collected yet).
         let pre = match workers.first_mut() {
@@ -620,7 +672,7 @@ impl Trainer {
             _ => Ok(()),
         };
         let (tx, rx) = mpsc::channel::<EvalRecord>();
-        let results: Vec<Result<(), LearnError>> = if pre.is_err() {
+        let results: Vec<Result<(), LearnError>> = if pre.is_err() || pretrain_only {
             vec![pre]
         } else {
             std::thread::scope(|s| {
@@ -641,16 +693,36 @@ impl Trainer {
                     })
                     .collect();
                 drop(tx);
+                let tick = if sync.is_some() {
+                    Duration::from_millis(1)
+                } else {
+                    Duration::from_millis(500)
+                };
+                let mut shown = Instant::now();
+                let mut fresh = Vec::new();
                 loop {
-                    match rx.recv_timeout(Duration::from_millis(500)) {
+                    match rx.recv_timeout(tick) {
                         Ok(rec) => {
                             on_event(Event::Eval(&rec));
+                            fresh.push(rec.clone());
                             records.push(rec);
                         }
-                        Err(mpsc::RecvTimeoutError::Timeout) => {
-                            on_event(Event::Progress(&ctx.progress()));
-                        }
+                        Err(mpsc::RecvTimeoutError::Timeout) => {}
                         Err(mpsc::RecvTimeoutError::Disconnected) => break,
+                    }
+                    if shown.elapsed() >= Duration::from_millis(500) {
+                        on_event(Event::Progress(&ctx.progress()));
+                        shown = Instant::now();
+                    }
+                    if let Some(sy) = sync.as_deref_mut() {
+                        match sy.poll(&SharedNets { ctx: &ctx }, &mut fresh) {
+                            Ok(false) => {}
+                            Ok(true) => ctx.ended.store(true, Ordering::Relaxed),
+                            Err(e) => {
+                                sync_err.get_or_insert(e);
+                                ctx.failed.store(true, Ordering::Relaxed);
+                            }
+                        }
                     }
                 }
                 handles
@@ -703,6 +775,9 @@ impl Trainer {
             ),
             None => None,
         };
+        if let Some(e) = sync_err {
+            return Err(e);
+        }
         for r in results {
             r?;
         }
@@ -732,6 +807,8 @@ struct Ctx<'a> {
     evals: AtomicU64,
     stop: &'a AtomicBool,
     failed: AtomicBool,
+    /// Set by a [`RankSync`] that ends the run (the parameter server said stop).
+    ended: AtomicBool,
     until: u64,
     start: Instant,
     base_wall: f64,
@@ -764,7 +841,63 @@ impl Ctx<'_> {
     }
 
     fn halted(&self) -> bool {
-        self.stop.load(Ordering::Relaxed) || self.failed.load(Ordering::Relaxed)
+        self.stop.load(Ordering::Relaxed)
+            || self.failed.load(Ordering::Relaxed)
+            || self.ended.load(Ordering::Relaxed)
+    }
+}
+
+/// The exchange of a distributed worker rank, polled on the run's calling thread (the only
+/// thread of the rank that talks to other ranks).
+pub(crate) trait RankSync {
+    /// Moves parameters between this rank's shared state and the parameter server; `fresh` holds
+    /// the evaluations finished since the last call (the sync takes what it forwards). Returns
+    /// true when the run should end.
+    fn poll(
+        &mut self,
+        shared: &SharedNets<'_, '_>,
+        fresh: &mut Vec<EvalRecord>,
+    ) -> Result<bool, LearnError>;
+}
+
+/// What a [`RankSync`] may touch of a running [`Trainer`]: the networks' shared halves (under
+/// their locks) and the counters.
+pub(crate) struct SharedNets<'c, 'a> {
+    ctx: &'c Ctx<'a>,
+}
+
+impl SharedNets<'_, '_> {
+    /// Runs `f` on network `i` (see [`SharedNets::net_count`]) under its lock; the workers copy
+    /// the parameters and target again afterwards.
+    pub(crate) fn with_net<R>(
+        &self,
+        i: usize,
+        f: impl FnOnce(&mut NetShared) -> R,
+    ) -> Result<R, LearnError> {
+        let m = match i {
+            0 => &self.ctx.actor,
+            1 => &self.ctx.critic,
+            _ => self
+                .ctx
+                .critic2
+                .as_ref()
+                .ok_or(LearnError::Worker("no such network"))?,
+        };
+        let mut g = lock(m)?;
+        let r = f(&mut g);
+        g.version += 1;
+        g.target_version += 1;
+        Ok(r)
+    }
+
+    /// The update counter (all of this rank's workers).
+    pub(crate) fn updates(&self) -> &AtomicU64 {
+        &self.ctx.updates
+    }
+
+    /// The rank's counters now.
+    pub(crate) fn progress(&self) -> Progress {
+        self.ctx.progress()
     }
 }
 
@@ -778,10 +911,10 @@ fn lock<T>(m: &Mutex<T>) -> Result<MutexGuard<'_, T>, LearnError> {
 }
 
 /// One network's shared half during a run.
-struct NetShared {
-    params: Vec<f32>,
-    target: Vec<f32>,
-    adam: AdamShared,
+pub(crate) struct NetShared {
+    pub(crate) params: Vec<f32>,
+    pub(crate) target: Vec<f32>,
+    pub(crate) adam: AdamShared,
     version: u64,
     target_version: u64,
 }

@@ -13,6 +13,7 @@
 //! ```
 
 mod demos;
+mod distributed;
 mod figure;
 mod imitate;
 mod train;
@@ -56,6 +57,9 @@ pub(crate) enum Command {
     Clone(demos::CloneArgs),
     /// Imitation learner: clone the Markov demonstrator, then DAgger rounds; exports the best round.
     Imitate(imitate::ImitateArgs),
+    /// The toy point-mass task across MPI ranks (a check of the distributed learner; under mpirun).
+    #[command(hide = true)]
+    DistributedPointMass(distributed::PointMassArgs),
 }
 
 /// `trainer figure` flags.
@@ -147,6 +151,18 @@ struct TrainArgs {
     /// No progress bar (logs only).
     #[arg(long)]
     quiet: bool,
+    /// One run across MPI ranks (start with `mpirun -np N trainer train --distributed ...`; rank
+    /// 0 is the parameter server, ranks 1..N-1 run W workers each; docs/distributed.md). Needs a
+    /// build with `--features mpi`.
+    #[arg(long)]
+    distributed: bool,
+    /// Distributed: a worker rank exchanges with rank 0 after this many of its updates (10).
+    #[arg(long, requires = "distributed")]
+    exchange_every: Option<u64>,
+    /// Distributed: seconds after which a silent worker rank is lost (60); rank 0 then writes a
+    /// checkpoint and fails naming it.
+    #[arg(long, requires = "distributed")]
+    rank_timeout: Option<f64>,
     /// Start from a named configuration (`paper`: plain DDPG, none of the components below;
     /// `demos`: the learner from demonstrations, the default of Grasp, StackInHand and Stack
     /// without --config and without component flags); conflicts with the component flags.
@@ -333,7 +349,9 @@ fn export_int8(
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Train(args) if args.distributed => distributed::train(&args),
         Command::Train(args) => train::train(*args),
+        Command::DistributedPointMass(args) => distributed::point_mass(&args),
         Command::Eval(args) => train::eval(&args),
         Command::Demos(args) => demos::demos(&args),
         Command::Clone(args) => demos::clone(&args),

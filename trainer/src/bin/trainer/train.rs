@@ -50,7 +50,7 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.q_normalisation.is_some()
 }
 
-fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
+pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if let Some(t) = a.task {
         s.task = t;
         if a.config.is_none() {
@@ -237,7 +237,7 @@ pub fn train_with(args: &TrainArgs, stop: &AtomicBool) -> anyhow::Result<bool> {
 
 /// `trainer train`'s output: a progress bar per seed (or, with `--quiet`, a line per evaluation)
 /// and a line per milestone.
-struct Terminal {
+pub(crate) struct Terminal {
     /// `--quiet`.
     quiet: bool,
     /// The current seed's bar.
@@ -253,7 +253,7 @@ struct Terminal {
 }
 
 impl Terminal {
-    fn new(quiet: bool) -> Self {
+    pub(crate) fn new(quiet: bool) -> Self {
         Terminal {
             quiet,
             bar: None,
@@ -264,7 +264,7 @@ impl Terminal {
         }
     }
 
-    fn show(&mut self, ev: TrainEvent<'_>) {
+    pub(crate) fn show(&mut self, ev: TrainEvent<'_>) {
         match ev {
             TrainEvent::Started { settings: s } => println!(
                 "training {:?} ({:?} reward), {} transitions x {} seed(s), R = {}, W = {}, into {}",

@@ -1,0 +1,255 @@
+//! The parameter server (rank 0): applies the worker ranks' pushes to a [`Trainer`]'s shared
+//! state and answers each with the state as it is then.
+//!
+//! Applying a push of k updates: `params += delta` and `v = beta2^steps v + dv` per network
+//! (steps: the network's Adam steps in the push), the Adam step count and the update count move
+//! on, and the targets are moved for each of the k updates the way a local run moves them
+//! ([`crate::learn::TargetUpdate::apply`], only on actor updates with TD3's delay). The
+//! transitions count toward the run's budget (kept in the trainer's first worker slot, so
+//! checkpoints and `Progress` carry the run's total), the evaluations are logged with the run's
+//! counters.
+//!
+//! Faults: a rank that sends nothing for [`DistributedConfig::rank_timeout`], or does not take a
+//! send for that long, is lost ([`DistributedError::RankLost`]); the caller writes a checkpoint.
+//! A refused message is counted ([`ExchangeStats::refused`]) and never applied; its sender gets
+//! the current state as if its push had been empty (it then drops what it pushed).
+
+use super::message::{self, Message, NetParams, Params, Push};
+use super::worker::{net_beta2, net_sizes};
+use super::{DistributedConfig, DistributedError, ExchangeStats, Transport};
+use crate::learn::{EvalRecord, Event, LearnError, Progress, RunSummary, Trainer};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// Rank 0 of a distributed run.
+pub struct Server<'t, T: Transport> {
+    transport: &'t mut T,
+    cfg: DistributedConfig,
+    sizes: Vec<usize>,
+    beta2: Vec<f32>,
+    last_seen: Vec<Instant>,
+    started: bool,
+    stats: ExchangeStats,
+}
+
+impl<T: Transport> std::fmt::Debug for Server<'_, T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Server")
+            .field("ranks", &self.transport.size())
+            .field("stats", &self.stats)
+            .finish()
+    }
+}
+
+impl<'t, T: Transport> Server<'t, T> {
+    /// The server of one run (the networks are the first [`Server::serve`] call's trainer's).
+    pub fn new(transport: &'t mut T, cfg: DistributedConfig) -> Result<Self, LearnError> {
+        cfg.validate()?;
+        let n = transport.size();
+        Ok(Server {
+            transport,
+            cfg,
+            sizes: Vec::new(),
+            beta2: Vec::new(),
+            last_seen: vec![Instant::now(); n],
+            started: false,
+            stats: ExchangeStats::default(),
+        })
+    }
+
+    /// The exchange counters so far (refused messages included).
+    pub fn stats(&self) -> ExchangeStats {
+        self.stats
+    }
+
+    /// Serves the worker ranks until the run's transitions reach `until` (or `stop` is raised).
+    /// The first call pre-trains on the demonstrations where configured (here, once, before any
+    /// rank starts) and sends every rank the state to start from.
+    pub fn serve(
+        &mut self,
+        trainer: &mut Trainer,
+        until: u64,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+    ) -> Result<RunSummary, LearnError> {
+        let t0 = Instant::now();
+        let base_wall = trainer.counters.wall_s;
+        if !self.started {
+            self.sizes = net_sizes(trainer);
+            self.beta2 = net_beta2(trainer);
+            trainer.pretrain_only(stop, on_event)?;
+            for r in 1..self.transport.size() {
+                self.send_params(trainer, r)?;
+            }
+            self.started = true;
+        }
+        // The time spent elsewhere (selection, checkpoints) is not silence.
+        self.last_seen.iter_mut().for_each(|t| *t = Instant::now());
+        let mut records = Vec::new();
+        let mut shown = Instant::now();
+        loop {
+            trainer.counters.wall_s = base_wall + t0.elapsed().as_secs_f64();
+            let progress = trainer.progress();
+            if progress.transitions >= until || stop.load(Ordering::Relaxed) {
+                return Ok(RunSummary {
+                    records,
+                    stopped: stop.load(Ordering::Relaxed) && progress.transitions < until,
+                    progress,
+                });
+            }
+            let mut busy = false;
+            while let Some((from, bytes)) = self.transport.try_recv(None)? {
+                busy = true;
+                self.stats.bytes_received += bytes.len() as u64;
+                if let Some(t) = self.last_seen.get_mut(from) {
+                    *t = Instant::now();
+                }
+                match message::decode(&bytes, &self.sizes) {
+                    Ok((r, Message::Push(p))) if r as usize == from && from > 0 => {
+                        self.apply(trainer, from, p, &mut records, on_event);
+                        self.stats.exchanges += 1;
+                        self.send_params(trainer, from)?;
+                    }
+                    _ => {
+                        // Refused, never applied; the rank still gets the state, so it drops
+                        // what it pushed and goes on from the server's state.
+                        self.stats.refused += 1;
+                        if from > 0 && from < self.transport.size() {
+                            self.send_params(trainer, from)?;
+                        }
+                    }
+                }
+            }
+            for r in 1..self.transport.size() {
+                let silent = self.last_seen[r].elapsed();
+                let stuck = self.transport.send_age(r).unwrap_or(Duration::ZERO);
+                let worst = silent.max(stuck);
+                if worst > self.cfg.rank_timeout {
+                    return Err(DistributedError::RankLost {
+                        rank: r,
+                        silent_s: worst.as_secs_f64(),
+                    }
+                    .into());
+                }
+            }
+            if shown.elapsed() >= Duration::from_millis(500) {
+                on_event(Event::Progress(&trainer.progress()));
+                shown = Instant::now();
+            }
+            if !busy {
+                std::thread::sleep(Duration::from_micros(500));
+            }
+        }
+    }
+
+    /// Tells every worker rank to stop and waits (up to the rank timeout) until the messages
+    /// are taken.
+    pub fn finish(&mut self) -> Result<(), LearnError> {
+        let bytes = message::encode(0, &Message::Stop);
+        for r in 1..self.transport.size() {
+            self.transport.send(r, bytes.clone())?;
+        }
+        let t0 = Instant::now();
+        while t0.elapsed() < self.cfg.rank_timeout {
+            // Pushes still arriving are dropped: the run is over.
+            while self.transport.try_recv(None)?.is_some() {}
+            let pending = (1..self.transport.size()).any(|r| self.transport.send_age(r).is_some());
+            if !pending {
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(())
+    }
+
+    fn send_params(&mut self, trainer: &Trainer, to: usize) -> Result<(), LearnError> {
+        let sh = &trainer.shared;
+        let all = [
+            (&sh.actor, &sh.target_actor, &sh.actor_adam),
+            (&sh.critic, &sh.target_critic, &sh.critic_adam),
+            (&sh.critic2, &sh.target_critic2, &sh.critic2_adam),
+        ];
+        let nets = all
+            .iter()
+            .take(self.sizes.len())
+            .map(|(p, t, a)| NetParams {
+                params: p.to_vec(),
+                target: t.to_vec(),
+                v: a.v.clone(),
+                t: a.t,
+            })
+            .collect();
+        let msg = Message::Params(Params {
+            updates: sh.updates,
+            transitions: trainer.progress().transitions,
+            nets,
+        });
+        let bytes = message::encode(0, &msg);
+        self.stats.bytes_sent += bytes.len() as u64;
+        self.transport.send(to, bytes)?;
+        Ok(())
+    }
+
+    fn apply(
+        &mut self,
+        trainer: &mut Trainer,
+        from: usize,
+        p: Push,
+        records: &mut Vec<EvalRecord>,
+        on_event: &mut dyn FnMut(Event<'_>),
+    ) {
+        let target = trainer.cfg.ddpg.target;
+        let td3 = trainer.cfg.td3;
+        let workers = trainer.cfg.workers;
+        let sh = &mut trainer.shared;
+        let u0 = sh.updates;
+        let mut all = [
+            (&mut sh.actor, &mut sh.target_actor, &mut sh.actor_adam),
+            (&mut sh.critic, &mut sh.target_critic, &mut sh.critic_adam),
+            (
+                &mut sh.critic2,
+                &mut sh.target_critic2,
+                &mut sh.critic2_adam,
+            ),
+        ];
+        for (((params, tgt, adam), d), &b2) in all.iter_mut().zip(&p.nets).zip(&self.beta2) {
+            params.iter_mut().zip(&d.delta).for_each(|(x, dx)| *x += dx);
+            let f = b2.powf(d.steps as f32);
+            adam.v
+                .iter_mut()
+                .zip(&d.dv)
+                .for_each(|(v, dv)| *v = (f * *v + dv).max(0.0));
+            adam.t += d.steps;
+            for u in u0 + 1..=u0 + p.updates {
+                if td3.actor_due(u) {
+                    target.apply(u, params, tgt);
+                }
+            }
+        }
+        sh.updates = u0 + p.updates;
+        sh.train_return_sum += p.return_sum;
+        sh.train_return_n += p.return_n;
+        if let Some(w) = trainer.workers.first_mut() {
+            w.transitions += p.transitions;
+        }
+        trainer.counters.episodes += p.episodes;
+        for e in p.evals {
+            trainer.counters.evals += 1;
+            let pr: Progress = trainer.progress();
+            let rec = EvalRecord {
+                eval_index: trainer.counters.evals,
+                episodes: pr.episodes,
+                transitions: pr.transitions,
+                transitions_per_worker: pr.transitions_per_worker,
+                updates: pr.updates,
+                wall_s: pr.wall_s,
+                mean_return: e.mean_return,
+                success_rate: e.success_rate,
+                train_return: e.train_return,
+                worker: (from - 1) * workers + e.worker as usize,
+            };
+            on_event(Event::Eval(&rec));
+            records.push(rec);
+        }
+    }
+}
