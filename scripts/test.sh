@@ -40,9 +40,6 @@ need mpirun "install Open MPI (Debian: apt-get install openmpi-bin libopenmpi-de
 step "MuJoCo and Jaco assets (scripts/setup-mujoco.sh)"
 bash scripts/setup-mujoco.sh
 
-step "Python harness (scripts/setup-python.sh)"
-bash scripts/setup-python.sh
-
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
@@ -51,6 +48,11 @@ cargo clippy --workspace --all-targets --all-features --locked -- -D warnings
 
 step "cargo test"
 cargo test --workspace --all-features --locked
+
+# After cargo test, so that the package's build (dev profile, target/debug) can reuse the
+# dependencies cargo test has built instead of building most of them first on its own.
+step "Python harness (scripts/setup-python.sh)"
+bash scripts/setup-python.sh
 
 step "no_std build for thumbv7em-none-eabihf (runtime, policy-format)"
 cargo build -p dex-runtime -p dex-policy --target thumbv7em-none-eabihf --no-default-features --release --locked
