@@ -343,13 +343,7 @@ impl TrainPlan {
                 return Ok(false);
             }
         }
-        let plotted = plot_run(&s.out, &mut |dir, lines| {
-            on_event(TrainEvent::MalformedLog { dir, lines });
-        });
-        match plotted {
-            Ok(files) => on_event(TrainEvent::Plotted { files: &files }),
-            Err(error) => on_event(TrainEvent::PlotFailed { error }),
-        }
+        plot_and_report(&s.out, on_event);
         Ok(true)
     }
 }
@@ -446,13 +440,7 @@ impl TrainPlan {
             server.finish()?;
             return Ok(false);
         }
-        let plotted = plot_run(&s.out, &mut |dir, lines| {
-            on_event(TrainEvent::MalformedLog { dir, lines });
-        });
-        match plotted {
-            Ok(files) => on_event(TrainEvent::Plotted { files: &files }),
-            Err(error) => on_event(TrainEvent::PlotFailed { error }),
-        }
+        plot_and_report(&s.out, on_event);
         Ok(true)
     }
 
@@ -998,4 +986,16 @@ fn export_and_evaluate(
         write_atomic(&dir.join("final_eval.json"), json.to_string().as_bytes())?;
     }
     Ok(eval)
+}
+
+/// Plots the run folder `out` and reports the files, or why the plots failed (the run itself
+/// succeeded either way).
+fn plot_and_report(out: &Path, on_event: &mut dyn FnMut(TrainEvent<'_>)) {
+    let plotted = plot_run(out, &mut |dir, lines| {
+        on_event(TrainEvent::MalformedLog { dir, lines });
+    });
+    match plotted {
+        Ok(files) => on_event(TrainEvent::Plotted { files: &files }),
+        Err(error) => on_event(TrainEvent::PlotFailed { error }),
+    }
 }

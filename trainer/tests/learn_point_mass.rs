@@ -1,36 +1,13 @@
 //! End-to-end learner tests on the toy point-mass task: DDPG learns it, one worker is deterministic,
 //! a checkpoint round trip continues bit-identically, and two ADPG-R workers learn too.
 
-use dex_trainer::learn::{
-    DdpgConfig, EvalConfig, Event, PointMass, PointMassConfig, RunConfig, TargetUpdate, Trainer,
-};
+use dex_trainer::learn::distributed::point_mass::point_mass_config;
+use dex_trainer::learn::{Event, PointMass, PointMassConfig, RunConfig, Trainer};
 use std::sync::atomic::AtomicBool;
 
+/// The library's point-mass learner (the one the distributed runs use), one worker.
 fn small_config(seed: u64) -> RunConfig {
-    RunConfig {
-        ddpg: DdpgConfig {
-            actor_hidden: vec![64, 64],
-            critic_hidden: vec![64, 64],
-            batch_size: 64,
-            gamma: 0.95,
-            target: TargetUpdate::Polyak { tau: 0.01 },
-            ..DdpgConfig::default()
-        },
-        updates_per_step: 1,
-        learning_starts: 500,
-        replay: dex_trainer::learn::ReplayConfig {
-            capacity: 50_000,
-            shared: true,
-        },
-        eval: EvalConfig {
-            every_episodes: 20,
-            episodes: 20,
-            max_steps: 100,
-            ..EvalConfig::default()
-        },
-        seed,
-        ..RunConfig::default()
-    }
+    point_mass_config(seed, 1)
 }
 
 fn env(_: usize) -> PointMass {
