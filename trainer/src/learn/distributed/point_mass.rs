@@ -137,8 +137,8 @@ mod tests {
             let _ = self.to[to].send((self.rank, bytes));
             Ok(())
         }
-        fn send_age(&mut self, _to: usize) -> Option<Duration> {
-            None
+        fn in_flight(&mut self, _to: usize) -> usize {
+            0
         }
     }
 
@@ -201,5 +201,54 @@ mod tests {
         assert!(o.stats.exchanges + o.stats.refused <= pushed, "{o:?}");
         assert!(o.stats.exchanges + o.stats.refused + 2 >= pushed, "{o:?}");
         assert!(o.success_rate >= 0.9, "{o:?}");
+    }
+
+    #[test]
+    fn a_silent_rank_is_lost_over_many_short_serve_calls() {
+        // Rank 2 never sends. The run goes in chunks much shorter than the timeout, with time
+        // away between them (a local run's selection and checkpoint): silence carries over the
+        // calls, so rank 0 still times rank 2 out, naming it.
+        let cfg = DistributedConfig {
+            rank_timeout: Duration::from_secs(1),
+            ..DistributedConfig::default()
+        };
+        let mut ranks = world(3, 0);
+        let _silent = ranks.pop().expect("rank 2");
+        let mut worker = ranks.pop().expect("rank 1");
+        let mut server_side = ranks.pop().expect("rank 0");
+        let w = std::thread::spawn(move || {
+            run_point_mass(&mut worker, cfg, point_mass_config(2, 1), u64::MAX, 0)
+        });
+        let stop = AtomicBool::new(false);
+        let mut trainer = Trainer::new(point_mass_config(2, 1), 6, 2).expect("trainer");
+        let mut server = Server::new(&mut server_side, cfg).expect("server");
+        let t0 = std::time::Instant::now();
+        let mut lost = None;
+        for _ in 0..2_000 {
+            let until = trainer.progress().transitions + 50;
+            match server.serve(&mut trainer, until, &stop, &mut |_| {}) {
+                Ok(_) => std::thread::sleep(Duration::from_millis(5)),
+                Err(e) => {
+                    lost = Some(e);
+                    break;
+                }
+            }
+            assert!(t0.elapsed() < Duration::from_secs(60), "never timed out");
+        }
+        server.finish().expect("finish");
+        let _ = w.join().expect("worker thread");
+        match lost {
+            Some(LearnError::Distributed(DistributedError::RankLost { rank, silent_s })) => {
+                assert_eq!(rank, 2);
+                assert!(silent_s >= 1.0, "{silent_s}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Many calls went by before it: the chunks were short.
+        assert!(
+            trainer.progress().transitions > 100,
+            "{:?}",
+            trainer.progress()
+        );
     }
 }

@@ -11,6 +11,10 @@
 //!
 //! Faults: a rank that sends nothing for [`DistributedConfig::rank_timeout`], or does not take a
 //! send for that long, is lost ([`DistributedError::RankLost`]); the caller writes a checkpoint.
+//! Silence is measured on the server's own clock, which runs only inside [`Server::serve`]: the
+//! time the caller spends between calls (selection, checkpoints) is nobody's silence, and a rank's
+//! silence carries over from one call to the next (resetting it at each call let a stopped rank
+//! live for ever once the checkpoint chunks were shorter than the timeout).
 //! A refused message is counted ([`ExchangeStats::refused`]) and never applied; its sender gets
 //! the current state as if its push had been empty (it then drops what it pushed).
 
@@ -18,6 +22,7 @@ use super::message::{self, Message, NetParams, Params, Push};
 use super::worker::{net_beta2, net_sizes};
 use super::{DistributedConfig, DistributedError, ExchangeStats, Transport};
 use crate::learn::{EvalRecord, Event, LearnError, Progress, RunSummary, Trainer};
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -27,7 +32,12 @@ pub struct Server<'t, T: Transport> {
     cfg: DistributedConfig,
     sizes: Vec<usize>,
     beta2: Vec<f32>,
-    last_seen: Vec<Instant>,
+    /// Serve-clock time of each rank's last message.
+    last_seen: Vec<Duration>,
+    /// Serve-clock start times of each rank's sends still in flight, oldest first.
+    sends: Vec<VecDeque<Duration>>,
+    /// Time spent inside `serve` by earlier calls.
+    served: Duration,
     started: bool,
     stats: ExchangeStats,
 }
@@ -51,7 +61,9 @@ impl<'t, T: Transport> Server<'t, T> {
             cfg,
             sizes: Vec::new(),
             beta2: Vec::new(),
-            last_seen: vec![Instant::now(); n],
+            last_seen: vec![Duration::ZERO; n],
+            sends: vec![VecDeque::new(); n],
+            served: Duration::ZERO,
             started: false,
             stats: ExchangeStats::default(),
         })
@@ -74,17 +86,37 @@ impl<'t, T: Transport> Server<'t, T> {
     ) -> Result<RunSummary, LearnError> {
         let t0 = Instant::now();
         let base_wall = trainer.counters.wall_s;
+        let base_served = self.served;
+        // The serve clock: time inside this and the earlier calls.
+        let clock = move || base_served + t0.elapsed();
+        let result = self.serve_until(trainer, until, stop, on_event, &clock, base_wall, t0);
+        self.served = clock();
+        result
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn serve_until(
+        &mut self,
+        trainer: &mut Trainer,
+        until: u64,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(Event<'_>),
+        clock: &dyn Fn() -> Duration,
+        base_wall: f64,
+        t0: Instant,
+    ) -> Result<RunSummary, LearnError> {
         if !self.started {
             self.sizes = net_sizes(trainer);
             self.beta2 = net_beta2(trainer);
             trainer.pretrain_only(stop, on_event)?;
             for r in 1..self.transport.size() {
-                self.send_params(trainer, r)?;
+                self.send_params(trainer, r, clock())?;
             }
+            // Pre-training is the server's time, not the ranks' silence.
+            let now = clock();
+            self.last_seen.iter_mut().for_each(|t| *t = now);
             self.started = true;
         }
-        // The time spent elsewhere (selection, checkpoints) is not silence.
-        self.last_seen.iter_mut().for_each(|t| *t = Instant::now());
         let mut records = Vec::new();
         let mut shown = Instant::now();
         loop {
@@ -102,27 +134,30 @@ impl<'t, T: Transport> Server<'t, T> {
                 busy = true;
                 self.stats.bytes_received += bytes.len() as u64;
                 if let Some(t) = self.last_seen.get_mut(from) {
-                    *t = Instant::now();
+                    *t = clock();
                 }
                 match message::decode(&bytes, &self.sizes) {
                     Ok((r, Message::Push(p))) if r as usize == from && from > 0 => {
                         self.apply(trainer, from, p, &mut records, on_event);
                         self.stats.exchanges += 1;
-                        self.send_params(trainer, from)?;
+                        self.send_params(trainer, from, clock())?;
                     }
                     _ => {
                         // Refused, never applied; the rank still gets the state, so it drops
                         // what it pushed and goes on from the server's state.
                         self.stats.refused += 1;
                         if from > 0 && from < self.transport.size() {
-                            self.send_params(trainer, from)?;
+                            self.send_params(trainer, from, clock())?;
                         }
                     }
                 }
             }
+            let now = clock();
             for r in 1..self.transport.size() {
-                let silent = self.last_seen[r].elapsed();
-                let stuck = self.transport.send_age(r).unwrap_or(Duration::ZERO);
+                let silent = now.saturating_sub(self.last_seen[r]);
+                let stuck = self
+                    .oldest_send(r)
+                    .map_or(Duration::ZERO, |t| now.saturating_sub(t));
                 let worst = silent.max(stuck);
                 if worst > self.cfg.rank_timeout {
                     return Err(DistributedError::RankLost {
@@ -153,7 +188,7 @@ impl<'t, T: Transport> Server<'t, T> {
         while t0.elapsed() < self.cfg.rank_timeout {
             // Pushes still arriving are dropped: the run is over.
             while self.transport.try_recv(None)?.is_some() {}
-            let pending = (1..self.transport.size()).any(|r| self.transport.send_age(r).is_some());
+            let pending = (1..self.transport.size()).any(|r| self.transport.in_flight(r) > 0);
             if !pending {
                 return Ok(());
             }
@@ -162,7 +197,29 @@ impl<'t, T: Transport> Server<'t, T> {
         Ok(())
     }
 
-    fn send_params(&mut self, trainer: &Trainer, to: usize) -> Result<(), LearnError> {
+    /// Moves the sends on and gives the serve-clock start of the oldest send to `r` still in
+    /// flight. (Sends to one rank complete in order, MPI's non-overtaking rule for one tag; were
+    /// one to complete early, the age of the rest would read younger, never older.)
+    fn oldest_send(&mut self, r: usize) -> Option<Duration> {
+        let n = self.transport.in_flight(r);
+        let q = self.sends.get_mut(r)?;
+        while q.len() > n {
+            q.pop_front();
+        }
+        q.front().copied()
+    }
+
+    /// Sends the current state to `to`; `now` is the serve clock (for the send's age).
+    fn send_params(
+        &mut self,
+        trainer: &Trainer,
+        to: usize,
+        now: Duration,
+    ) -> Result<(), LearnError> {
+        self.oldest_send(to);
+        if let Some(q) = self.sends.get_mut(to) {
+            q.push_back(now);
+        }
         let sh = &trainer.shared;
         let all = [
             (&sh.actor, &sh.target_actor, &sh.actor_adam),

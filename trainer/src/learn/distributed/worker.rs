@@ -300,7 +300,7 @@ impl<T: Transport> RankSync for WorkerRank<'_, T> {
         shared: &SharedNets<'_, '_>,
         fresh: &mut Vec<EvalRecord>,
     ) -> Result<bool, LearnError> {
-        let _ = self.transport.send_age(0);
+        let _ = self.transport.in_flight(0);
         while let Some(m) = self.receive()? {
             match m {
                 Message::Params(p) => {
