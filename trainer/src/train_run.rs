@@ -339,7 +339,7 @@ impl TrainPlan {
         write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
         on_event(TrainEvent::Started { settings: s });
         for &seed in &s.seeds {
-            if !train_seed(s, seed, scene, &self.starts, resume, stop, on_event)? {
+            if !train_seed(s, seed, scene, &self.starts, resume, stop, on_event, None)? {
                 return Ok(false);
             }
         }
@@ -420,7 +420,7 @@ impl TrainPlan {
         write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
         on_event(TrainEvent::Started { settings: s });
         let seed = s.seeds[0];
-        let done = train_seed_with(
+        let done = train_seed(
             s,
             seed,
             scene,
@@ -580,23 +580,10 @@ fn demonstrations(
     Ok(Some(demo_buffer(&sets, s.task.task(), env_cfg.reward)?))
 }
 
-/// Trains one seed on local threads; returns false if interrupted.
-fn train_seed(
-    s: &TrainSettings,
-    seed: u64,
-    scene: &Scene,
-    starts: &StartStates<DemoSource>,
-    resume: bool,
-    stop: &AtomicBool,
-    on_event: &mut dyn FnMut(TrainEvent<'_>),
-) -> Result<bool, TrainRunError> {
-    train_seed_with(s, seed, scene, starts, resume, stop, on_event, None)
-}
-
 /// Trains one seed, holding its run lock, on local threads or (with `server`) on the worker
 /// ranks of a distributed run; returns false if interrupted.
 #[allow(clippy::too_many_arguments)]
-fn train_seed_with(
+fn train_seed(
     s: &TrainSettings,
     seed: u64,
     scene: &Scene,

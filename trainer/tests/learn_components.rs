@@ -5,35 +5,24 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::type_complexity)]
 
+use dex_trainer::learn::distributed::point_mass::point_mass_config;
 use dex_trainer::learn::{
-    DdpgConfig, DemoBuffer, DemoTransition, Env, EvalConfig, Event, PointMass, PointMassConfig,
-    ReplayConfig, Rng, RunConfig, TargetUpdate, Td3Config, Trainer,
+    DemoBuffer, DemoTransition, Env, EvalConfig, Event, PointMass, PointMassConfig, Rng, RunConfig,
+    Td3Config, Trainer,
 };
 use std::sync::atomic::AtomicBool;
 
+/// The distributed point-mass learner's settings, learning from 200 transitions and evaluating
+/// every 10 episodes.
 fn small_config(seed: u64) -> RunConfig {
+    let base = point_mass_config(seed, 1);
     RunConfig {
-        ddpg: DdpgConfig {
-            actor_hidden: vec![64, 64],
-            critic_hidden: vec![64, 64],
-            batch_size: 64,
-            gamma: 0.95,
-            target: TargetUpdate::Polyak { tau: 0.01 },
-            ..DdpgConfig::default()
-        },
         learning_starts: 200,
-        replay: ReplayConfig {
-            capacity: 50_000,
-            shared: true,
-        },
         eval: EvalConfig {
             every_episodes: 10,
-            episodes: 20,
-            max_steps: 100,
-            ..EvalConfig::default()
+            ..base.eval
         },
-        seed,
-        ..RunConfig::default()
+        ..base
     }
 }
 
