@@ -1,5 +1,5 @@
 //! Records the folder of the MuJoCo library fetched by `scripts/setup-mujoco.sh` as the extension
-//! module's RUNPATH (as `trainer/build.rs` does for the trainer's binaries), so `import dexstack`
+//! module's RUNPATH (as `env/build.rs` and `trainer/build.rs` do for their tests and binaries), so `import dexstack`
 //! finds `libmujoco.so` without `LD_LIBRARY_PATH`.
 
 use std::path::Path;

@@ -15,8 +15,8 @@ def rust_binary(name: str):
     """Builds `dex-trainer`'s binary `name` (the optimised dev profile, like the other tests).
 
     `-p dexstack` is selected too so that cargo resolves the features as for the package that
-    `scripts/setup-python.sh` built (PyO3's macros widen `syn`'s): the dex-trainer library is then
-    reused, not compiled a second time."""
+    `scripts/setup-python.sh` built (PyO3's macros widen `syn`'s): the libraries both use (dex-env
+    and below) are then reused, not compiled a second time."""
     subprocess.run(TRAINER_BUILD + ["--bin", name], cwd=ROOT, check=True)
     path = cargo_target_dir() / "debug" / name
     assert path.exists(), path

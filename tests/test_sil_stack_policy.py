@@ -21,7 +21,7 @@ def build(tmp_path, package, binary, features=()):
     args = ["cargo", "build", "-q", "-p", package, "--bin", binary]
     if package == "dex-trainer":
         # With the dexstack package selected, cargo resolves features as for the build of
-        # scripts/setup-python.sh and reuses its dex-trainer library (tests/dexstack_util.py).
+        # scripts/setup-python.sh and reuses its libraries (dex-env and below; tests/dexstack_util.py).
         args += ["-p", "dexstack"]
     if features:
         args += ["--features", ",".join(features)]

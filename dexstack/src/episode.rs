@@ -5,11 +5,11 @@
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use dex_runtime::interface::ACT_DIM;
-use dex_trainer::env::{
+use dex_env::{
     Demonstrator, EnvConfig, JacoEnv, Observation, Predicates, Reward, Scene, StartKind,
     StartScheme, StartStates, Task,
 };
+use dex_runtime::interface::ACT_DIM;
 
 use crate::error::{Error, Result};
 
@@ -92,7 +92,7 @@ impl Options {
             },
             "along-demonstrations" => StartScheme::AlongDemonstrations {
                 train_episode_steps: episode_steps
-                    .unwrap_or(dex_trainer::env::start_states::DEMO_TRAIN_EPISODE_STEPS),
+                    .unwrap_or(dex_env::start_states::DEMO_TRAIN_EPISODE_STEPS),
             },
             other => return Err(Error::UnknownStart(other.to_owned())),
         };

@@ -1,7 +1,7 @@
 //! The errors of the bindings, and the Python exception each becomes.
 
-use dex_trainer::env::EnvError;
-use dex_trainer::evaluate::EvalError;
+use dex_env::EnvError;
+use dex_env::evaluate::EvalError;
 use pyo3::PyErr;
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
 

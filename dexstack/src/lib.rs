@@ -16,8 +16,8 @@ pub mod error;
 pub mod policy;
 pub mod vector;
 
+use dex_env::{MarkovDemonstrator, Reward, StartKind, Task};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
-use dex_trainer::env::{MarkovDemonstrator, Reward, StartKind, Task};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
@@ -267,7 +267,7 @@ pub struct Demonstrator {
 }
 
 enum DemoKind {
-    Scripted(dex_trainer::env::Demonstrator),
+    Scripted(dex_env::Demonstrator),
     Markov(MarkovDemonstrator),
 }
 
@@ -280,7 +280,7 @@ impl Demonstrator {
     fn new(task: &str, kind: &str) -> PyResult<Self> {
         let task = episode::parse_task(task)?;
         let kind = match kind {
-            "scripted" => DemoKind::Scripted(dex_trainer::env::Demonstrator::new(task)),
+            "scripted" => DemoKind::Scripted(dex_env::Demonstrator::new(task)),
             "markov" => DemoKind::Markov(MarkovDemonstrator::new(task)),
             other => return Err(Error::UnknownDemonstrator(other.to_owned()).into()),
         };
@@ -391,7 +391,7 @@ impl Policy {
 /// draw them.
 #[pyfunction]
 fn episode_seed(seed: u64, index: u64) -> u64 {
-    dex_trainer::evaluate::episode_seed(seed, index)
+    dex_env::evaluate::episode_seed(seed, index)
 }
 
 /// The reward names (kebab-case), as `trainer train --reward` takes them.

@@ -1,11 +1,11 @@
 //! A policy file run through the runtime's evaluator, as `trainer eval` and a controller run it.
 
+use dex_env::evaluate::{EVAL_WIDTH, decode_jaco_policy, physical_to_env_action};
 use dex_policy::PolicyView;
 use dex_runtime::Network;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_runtime::testkit::AlignedBytes;
-use dex_trainer::evaluate::{EVAL_WIDTH, decode_jaco_policy, physical_to_env_action};
 
 use crate::error::{Error, Result};
 
@@ -54,7 +54,7 @@ pub struct LoadedPolicy {
     file: AlignedBytes,
     net: Network<EVAL_WIDTH>,
     info: PolicyInfo,
-    task: dex_trainer::env::Task,
+    task: dex_env::Task,
 }
 
 impl LoadedPolicy {
@@ -66,10 +66,10 @@ impl LoadedPolicy {
             let net =
                 Network::new(&view, aligned.as_bytes()).map_err(|e| Error::Policy(e.into()))?;
             let task = match view.body().task {
-                dex_policy::Task::Reach => dex_trainer::env::Task::Reach,
-                dex_policy::Task::Grasp => dex_trainer::env::Task::Grasp,
-                dex_policy::Task::StackInHand => dex_trainer::env::Task::StackInHand,
-                dex_policy::Task::Stack => dex_trainer::env::Task::Stack,
+                dex_policy::Task::Reach => dex_env::Task::Reach,
+                dex_policy::Task::Grasp => dex_env::Task::Grasp,
+                dex_policy::Task::StackInHand => dex_env::Task::StackInHand,
+                dex_policy::Task::Stack => dex_env::Task::Stack,
             };
             (net, describe(&view, file, task), task)
         };
@@ -82,7 +82,7 @@ impl LoadedPolicy {
     }
 
     /// The task the file was trained for.
-    pub fn task(&self) -> dex_trainer::env::Task {
+    pub fn task(&self) -> dex_env::Task {
         self.task
     }
 
@@ -125,7 +125,7 @@ impl LoadedPolicy {
     }
 }
 
-fn describe(view: &PolicyView<'_>, file: &[u8], task: dex_trainer::env::Task) -> PolicyInfo {
+fn describe(view: &PolicyView<'_>, file: &[u8], task: dex_env::Task) -> PolicyInfo {
     let h = view.header();
     let b = view.body();
     let lower = |s: String| s.to_lowercase();

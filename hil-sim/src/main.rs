@@ -434,8 +434,7 @@ fn make_plant(kind: PlantKind, task: &str, steps: u32) -> Result<Box<dyn Plant>>
         }
         #[cfg(feature = "mujoco")]
         PlantKind::Mujoco => {
-            let task: dex_trainer::env::Task =
-                task.parse().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            let task: dex_env::Task = task.parse().map_err(|e| anyhow::anyhow!("{e:?}"))?;
             Ok(Box::new(dex_hil_sim::plant::MujocoPlant::new(task)?))
         }
         #[cfg(not(feature = "mujoco"))]

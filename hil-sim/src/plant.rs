@@ -2,7 +2,7 @@
 //! valid (E2E-checked, complete) action it received.
 //!
 //! [`Plant`] is the simulation: [`SyntheticPlant`] (a kinematic stand-in with no physics, always
-//! available) or, with the `mujoco` feature, [`MujocoPlant`] (the trainer's MuJoCo Jaco
+//! available) or, with the `mujoco` feature, [`MujocoPlant`] (`dex-env`'s MuJoCo Jaco
 //! environment). [`PlantNode`] puts a plant on the bus and runs episodes in lockstep or in real time.
 
 use std::time::{Duration, Instant};
@@ -156,18 +156,18 @@ impl Plant for SyntheticPlant {
     }
 }
 
-/// The trainer's MuJoCo Jaco environment as a plant (feature `mujoco`).
+/// The MuJoCo Jaco environment of `dex-env` as a plant (feature `mujoco`).
 #[cfg(feature = "mujoco")]
 pub struct MujocoPlant {
-    env: dex_trainer::env::JacoEnv,
+    env: dex_env::JacoEnv,
 }
 
 #[cfg(feature = "mujoco")]
 impl MujocoPlant {
     /// Loads the scene (assets from `scripts/setup-mujoco.sh`) for `task`.
-    pub fn new(task: dex_trainer::env::Task) -> Result<Self, PlantError> {
-        let scene = dex_trainer::env::Scene::load().map_err(|e| PlantError::Sim(e.to_string()))?;
-        let env = dex_trainer::env::JacoEnv::new(&scene, dex_trainer::env::EnvConfig::new(task));
+    pub fn new(task: dex_env::Task) -> Result<Self, PlantError> {
+        let scene = dex_env::Scene::load().map_err(|e| PlantError::Sim(e.to_string()))?;
+        let env = dex_env::JacoEnv::new(&scene, dex_env::EnvConfig::new(task));
         Ok(MujocoPlant { env })
     }
 }
@@ -211,7 +211,7 @@ fn is_fault_emcy(code: u16) -> bool {
 }
 
 /// Seed of episode `index` of a run seeded with `seed` (SplitMix64 of both): the same function as
-/// `dex_trainer::evaluate::episode_seed`, so `hil-sim run` and `trainer eval` see the same start
+/// `dex_env::evaluate::episode_seed`, so `hil-sim run` and `trainer eval` see the same start
 /// states for the same `--seed`.
 pub fn episode_seed(seed: u64, index: u64) -> u64 {
     let mut z = seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);

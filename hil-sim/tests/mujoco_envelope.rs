@@ -10,6 +10,7 @@
 
 mod common;
 
+use dex_env::Task;
 use dex_hil_sim::plant::{MujocoPlant, Plant, PlantError, PlantStep};
 use dex_policy::encode_to_vec;
 use dex_policy::synth::{SplitMix64, SynthSpec, synth_parts};
@@ -17,7 +18,6 @@ use dex_policy::{Activation, PolicyView, Task as PolicyTask};
 use dex_runtime::envelope::EnvelopeConfig;
 use dex_runtime::interface::{ACT_DIM, OBS_DIM, OBSERVATION_FIELDS};
 use dex_runtime::testkit::{aligned_copy, cell_layout, jaco_policy};
-use dex_trainer::env::Task;
 
 fn offset(name: &str) -> usize {
     let mut start = 0;

@@ -6,13 +6,13 @@
 
 mod common;
 
+use dex_env::Task;
 use dex_hil_sim::plant::{MujocoPlant, Plant};
 use dex_policy::PolicyView;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_runtime::testkit::{aligned_copy, jaco_policy};
-use dex_trainer::env::Task;
 
 #[test]
 fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
@@ -28,7 +28,7 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
     let view = PolicyView::decode(bytes.as_bytes()).unwrap();
     let mut mlp = Mlp::<256>::new(&view).unwrap();
     // The controller node runs the safety envelope (its default) after the policy.
-    let mut envelope = dex_trainer::evaluate::eval_envelope();
+    let mut envelope = dex_env::evaluate::eval_envelope();
     let mut plant = MujocoPlant::new(Task::Stack).unwrap();
     let mut obs = plant.reset(seed).unwrap();
     let mut total = 0.0f64;
@@ -60,8 +60,8 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
 /// 1,000,000 and checks every episode's return and success against `trainer eval`'s (CAN
 /// quantisation on); returns the successes.
 fn over_the_bus_like_trainer_eval(file: &[u8], task: Task, episodes: u64) -> usize {
-    use dex_trainer::env::{EnvConfig, Scene};
-    use dex_trainer::evaluate::{EvalSettings, episode_outcomes, episode_seed};
+    use dex_env::evaluate::{EvalSettings, episode_outcomes, episode_seed};
+    use dex_env::{EnvConfig, Scene};
     let seeds: Vec<(u64, u32)> = (0..episodes)
         .map(|i| (episode_seed(1_000_000, i), u32::MAX))
         .collect();

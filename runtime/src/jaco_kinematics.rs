@@ -1,5 +1,5 @@
 //! The Jaco arm's kinematic chain to the pinch site, generated from the simulation's compiled MJCF
-//! (dm_control's `jaco_arm.xml` + `jaco_hand.xml` in `trainer/src/env/scene.rs`) by
+//! (dm_control's `jaco_arm.xml` + `jaco_hand.xml` in `env/src/scene.rs`) by
 //! `dex_trainer::env::fk_constants`. Do not edit: `DEX_BLESS=1 cargo test -p dex-trainer --release
 //! --test envelope_fk` rewrites it, and that test fails when it differs from the model.
 //! World frame = table frame (surface at z = 0); quaternions are (w, x, y, z).

@@ -25,8 +25,10 @@
 
 pub mod cloning;
 pub mod demos;
-pub mod env;
-pub mod evaluate;
+/// The environment (crate `dex-env`, re-exported so `dex_trainer::env::*` keeps its paths).
+pub use dex_env as env;
+/// The runtime's evaluator on the environment (`dex_env::evaluate`).
+pub use dex_env::evaluate;
 pub mod export;
 pub mod imitation;
 pub mod jaco;

@@ -15,7 +15,7 @@ use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::envelope::{Envelope, EnvelopeConfig};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 
-use crate::env::{EnvConfig, EnvError, JacoEnv, Scene};
+use crate::{EnvConfig, EnvError, JacoEnv, Scene};
 
 /// Widest layer `trainer eval` accepts.
 pub const EVAL_WIDTH: usize = 1024;

@@ -7,7 +7,7 @@
 //! from the state at every step (brick held? on brick 2? pinch at the grasp point? fingers closed
 //! and settled?) and blends where the phase machine switches (the hand descends as it aligns),
 //! so it is an oracle at any state: cloning it is plain regression, and DAgger can ask it about
-//! the learner's own states ([`crate::imitation`]).
+//! the learner's own states (`dex_trainer::imitation`).
 //!
 //! Placing differs from the phase machine's on purpose: brick 1 is not turned to brick 2's yaw (the
 //! stack predicate is an offset of origins and a misaligned brick rests on the studs inside it),

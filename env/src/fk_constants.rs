@@ -106,7 +106,7 @@ pub fn runtime_constants(scene: &Scene) -> Result<String, EnvError> {
     let mut s = String::new();
     s.push_str(
         "//! The Jaco arm's kinematic chain to the pinch site, generated from the simulation's compiled MJCF\n\
-         //! (dm_control's `jaco_arm.xml` + `jaco_hand.xml` in `trainer/src/env/scene.rs`) by\n\
+         //! (dm_control's `jaco_arm.xml` + `jaco_hand.xml` in `env/src/scene.rs`) by\n\
          //! `dex_trainer::env::fk_constants`. Do not edit: `DEX_BLESS=1 cargo test -p dex-trainer --release\n\
          //! --test envelope_fk` rewrites it, and that test fails when it differs from the model.\n\
          //! World frame = table frame (surface at z = 0); quaternions are (w, x, y, z).\n\n\

@@ -13,12 +13,15 @@
 //!   ([`markov_demo`]).
 //! - [`StartStates`] makes training starts under a [`StartScheme`]: original, in-hand mixture, or
 //!   states along demonstrations ([`start_states`]).
+//! - [`evaluate`]: the success rate of a policy file run through the `dex-runtime` evaluator (the
+//!   code a controller runs) on these tasks.
 //!
 //! Not here: rendering, the learner, and the real robot's CAN side.
 
 pub mod demo;
 pub mod environment;
 pub mod error;
+pub mod evaluate;
 pub mod fk_constants;
 pub mod kinematics;
 pub mod markov_demo;
