@@ -2,6 +2,7 @@
 import time
 
 import can
+import pytest
 
 from conftest import (
     DB, EMCY_ID, HEARTBEAT_ID, NMT_START, OPERATIONAL, PERIOD, PREOP, STOPPED, PlantTx, collect,
@@ -39,6 +40,21 @@ def heartbeat_of(got):
     return [DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False) for _, m in got if m.arbitration_id == HEARTBEAT_ID]
 
 
+@pytest.fixture
+def lossy(sim):
+    """A started controller whose watchdog allows 6 periods instead of 3, for the tests that lose
+    one observation by design and check that the controller stays operational: with 3 periods the
+    two-period gap they make leaves 50 ms for the harness's own lateness, which a loaded 2-core
+    machine exceeded (1 run in 7, SafeStop on ObservationTimeout). The watchdog itself is tested
+    with the default (test_observation_timeout_safe_stops_with_emcy_8250)."""
+    s = sim(extra=["--watchdog-cycles", "6"])
+    bus = s.bus()
+    wait_heartbeat(bus, PREOP, 2.0)
+    nmt(bus, NMT_START)
+    wait_heartbeat(bus, OPERATIONAL, 1.0)
+    return s, bus
+
+
 def test_observation_timeout_safe_stops_with_emcy_8250(operational):
     s, bus = operational
     tx = PlantTx()
@@ -57,8 +73,8 @@ def test_observation_timeout_safe_stops_with_emcy_8250(operational):
     assert s.diag()["fault"] == "ObservationTimeout"
 
 
-def test_crc_error_is_ignored_and_counted(operational):
-    s, bus = operational
+def test_crc_error_is_ignored_and_counted(lossy):
+    s, bus = lossy
     tx = PlantTx()
     got, _ = run_plant(bus, tx, 2)
     frames = tx.frames(observation(3))
@@ -76,8 +92,8 @@ def test_crc_error_is_ignored_and_counted(operational):
     assert len(answered(got2)) >= 3
 
 
-def test_injected_corruption_on_the_bus_is_detected(operational):
-    s, bus = operational
+def test_injected_corruption_on_the_bus_is_detected(lossy):
+    s, bus = lossy
     tx = PlantTx()
     run_plant(bus, tx, 2)
     assert s.control("fault corrupt 205 1") == "< ok >"
@@ -105,8 +121,8 @@ def test_repeated_frame_is_dropped_and_the_observation_still_completes(operation
     assert int(d["repeated"]) == 1 and int(d["e2e_errors"]) == 0
 
 
-def test_skipped_alive_counter_drops_that_observation_then_resynchronises(operational):
-    s, bus = operational
+def test_skipped_alive_counter_drops_that_observation_then_resynchronises(lossy):
+    s, bus = lossy
     tx = PlantTx()
     run_plant(bus, tx, 2)
     tx.counters[3] = (tx.counters[3] + 1) % 15  # one counter value skipped on OBS_03

@@ -136,6 +136,7 @@ pub fn run_bench(cfg: &BenchConfig) -> Result<BenchReport, BenchError> {
     let node = spawn_controller_node(
         bus.addr(),
         Some(cfg.policy.clone()),
+        dex_runtime::ControllerConfig::default(),
         TimeMode::RealTime,
         Arc::clone(&stop),
         Some(Arc::clone(&status)),

@@ -66,6 +66,10 @@ enum Command {
         /// on SYNC, for a lockstep plant in another process (`hil-sim plant --connect`).
         #[arg(long)]
         lockstep: bool,
+        /// The controller node's watchdog: safe-stop when the newest complete observation is
+        /// older than this many control periods (the controller's default is 3).
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        watchdog_cycles: u32,
     },
     /// The plant alone, on a bus started by another process (`hil-sim bus --lockstep`, whose
     /// controller may have been flashed over the bus first): NMT master, lockstep episodes.
@@ -176,8 +180,17 @@ fn main() -> Result<()> {
             queue,
             sndbuf,
             lockstep,
+            watchdog_cycles,
         } => bus_command(
-            port, log, policy, controller, seconds, queue, sndbuf, lockstep,
+            port,
+            log,
+            policy,
+            controller,
+            seconds,
+            queue,
+            sndbuf,
+            lockstep,
+            watchdog_cycles,
         ),
         Command::Plant {
             connect,
@@ -225,6 +238,7 @@ fn bus_command(
     queue: usize,
     sndbuf: Option<usize>,
     lockstep: bool,
+    watchdog_cycles: u32,
 ) -> Result<()> {
     let bus = Bus::start(BusConfig {
         addr: SocketAddr::from(([127, 0, 0, 1], port)),
@@ -247,6 +261,10 @@ fn bus_command(
         Some(spawn_controller_node(
             bus.addr(),
             bytes,
+            dex_runtime::ControllerConfig {
+                watchdog_cycles,
+                ..dex_runtime::ControllerConfig::default()
+            },
             if lockstep {
                 TimeMode::Lockstep
             } else {
@@ -312,6 +330,7 @@ fn run_command(
     let node = spawn_controller_node(
         bus.addr(),
         Some(bytes),
+        dex_runtime::ControllerConfig::default(),
         mode,
         Arc::clone(&stop),
         Some(Arc::clone(&status)),

@@ -349,10 +349,11 @@ impl NodePort for BusClient {
     }
 }
 
-/// Connects a controller node to the bus at `addr` and runs it on a new thread.
+/// Connects a controller node (settings `cfg`) to the bus at `addr` and runs it on a new thread.
 pub fn spawn_controller_node(
     addr: std::net::SocketAddr,
     policy: Option<Vec<u8>>,
+    cfg: ControllerConfig,
     mode: TimeMode,
     stop: Arc<AtomicBool>,
     status: Option<Arc<Mutex<String>>>,
@@ -360,15 +361,6 @@ pub fn spawn_controller_node(
     let mut port = BusClient::connect(addr, "vcan0")?;
     std::thread::Builder::new()
         .name("controller-node".into())
-        .spawn(move || {
-            run_controller_node(
-                &mut port,
-                policy.as_deref(),
-                ControllerConfig::default(),
-                mode,
-                &stop,
-                status,
-            )
-        })
+        .spawn(move || run_controller_node(&mut port, policy.as_deref(), cfg, mode, &stop, status))
         .map_err(|e| NodeError::Bus(ClientError::Io(e)))
 }

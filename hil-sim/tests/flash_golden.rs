@@ -50,6 +50,7 @@ fn the_golden_flash_recording_is_what_a_flash_over_the_bus_sends_and_receives() 
     let node = spawn_controller_node(
         bus.addr(),
         Some(old),
+        dex_runtime::ControllerConfig::default(),
         TimeMode::Lockstep,
         stop.clone(),
         None,

@@ -26,6 +26,7 @@ pub fn lockstep_over_the_bus(
     let node = spawn_controller_node(
         bus.addr(),
         Some(policy.to_vec()),
+        dex_runtime::ControllerConfig::default(),
         TimeMode::Lockstep,
         Arc::clone(&stop),
         None,
