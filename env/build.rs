@@ -1,5 +1,7 @@
-//! Links the environment crate's tests against the MuJoCo library fetched by `scripts/setup-mujoco.sh`
-//! and records its folder as RUNPATH, so nothing needs `LD_LIBRARY_PATH`.
+//! Links a crate's binaries, tests and extension module against the MuJoCo library fetched by
+//! `scripts/setup-mujoco.sh` and records its folder as RUNPATH, so nothing needs `LD_LIBRARY_PATH`.
+//! The build script of every crate that links MuJoCo: `dex-env` (here), and `dex-trainer` and
+//! `dexstack` through `build = "../env/build.rs"` (a link argument does not pass to dependents).
 
 use std::path::Path;
 

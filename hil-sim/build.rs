@@ -1,5 +1,5 @@
 //! With the `mujoco` feature, records the MuJoCo library folder as RUNPATH of the binary and tests
-//! (as `trainer/build.rs` does for the trainer's own targets).
+//! (as `env/build.rs` does for the crates that always link MuJoCo).
 
 fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
