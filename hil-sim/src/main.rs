@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
 use dex_hil_sim::node::{TimeMode, spawn_controller_node};
@@ -40,37 +40,7 @@ const DEFAULT_PLANT: PlantKind = PlantKind::Synthetic;
 #[derive(Subcommand)]
 enum Command {
     /// Run only the bus (and optionally the controller node) until `< quit >` or --seconds.
-    Bus {
-        /// Port on 127.0.0.1 (0: a free one; the chosen one is printed).
-        #[arg(long, default_value_t = 0)]
-        port: u16,
-        /// candump-format log.
-        #[arg(long)]
-        log: Option<PathBuf>,
-        /// Run the controller node with this policy file (a refused file leaves it pre-operational).
-        #[arg(long)]
-        policy: Option<PathBuf>,
-        /// Run the controller node without a policy.
-        #[arg(long)]
-        controller: bool,
-        /// Exit after this many seconds.
-        #[arg(long)]
-        seconds: Option<f64>,
-        /// Frames queued per client before frames to it are dropped.
-        #[arg(long, default_value_t = 4096)]
-        queue: usize,
-        /// Fixed kernel send buffer per client socket in bytes (default: autotuned).
-        #[arg(long)]
-        sndbuf: Option<usize>,
-        /// Simulated time: the bus clock moves only on `< time US >` and the controller node polls
-        /// on SYNC, for a lockstep plant in another process (`hil-sim plant --connect`).
-        #[arg(long)]
-        lockstep: bool,
-        /// The controller node's watchdog: safe-stop when the newest complete observation is
-        /// older than this many control periods (the controller's default is 3).
-        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
-        watchdog_cycles: u32,
-    },
+    Bus(BusArgs),
     /// The plant alone, on a bus started by another process (`hil-sim bus --lockstep`, whose
     /// controller may have been flashed over the bus first): NMT master, lockstep episodes.
     Plant {
@@ -98,32 +68,7 @@ enum Command {
         actions: Option<PathBuf>,
     },
     /// Closed-loop episodes: plant node and controller node over the bus.
-    Run {
-        /// Policy file.
-        #[arg(long)]
-        policy: PathBuf,
-        /// Episodes.
-        #[arg(long, default_value_t = 1)]
-        episodes: u32,
-        /// Run seed; episode i starts from `episode_seed(seed, i)` as in `trainer eval`.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
-        #[arg(long, default_value = "stack")]
-        task: String,
-        /// Which plant (default: mujoco when built with the `mujoco` feature, else synthetic).
-        #[arg(long, value_enum, default_value_t = DEFAULT_PLANT)]
-        plant: PlantKind,
-        /// Wall clock at 20 Hz instead of lockstep.
-        #[arg(long)]
-        realtime: bool,
-        /// Steps per episode for the synthetic plant (the MuJoCo plant uses the task's length).
-        #[arg(long, default_value_t = 150)]
-        steps: u32,
-        /// candump-format log.
-        #[arg(long)]
-        log: Option<PathBuf>,
-    },
+    Run(RunArgs),
     /// Observation-to-action latency through the bus, period jitter, bus load.
     Bench {
         /// Cycles.
@@ -169,29 +114,72 @@ enum Command {
     },
 }
 
+/// `hil-sim bus`: the bus alone, optionally with the controller node.
+#[derive(Args)]
+struct BusArgs {
+    /// Port on 127.0.0.1 (0: a free one; the chosen one is printed).
+    #[arg(long, default_value_t = 0)]
+    port: u16,
+    /// candump-format log.
+    #[arg(long)]
+    log: Option<PathBuf>,
+    /// Run the controller node with this policy file (a refused file leaves it pre-operational).
+    #[arg(long)]
+    policy: Option<PathBuf>,
+    /// Run the controller node without a policy.
+    #[arg(long)]
+    controller: bool,
+    /// Exit after this many seconds.
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Frames queued per client before frames to it are dropped.
+    #[arg(long, default_value_t = 4096)]
+    queue: usize,
+    /// Fixed kernel send buffer per client socket in bytes (default: autotuned).
+    #[arg(long)]
+    sndbuf: Option<usize>,
+    /// Simulated time: the bus clock moves only on `< time US >` and the controller node polls
+    /// on SYNC, for a lockstep plant in another process (`hil-sim plant --connect`).
+    #[arg(long)]
+    lockstep: bool,
+    /// The controller node's watchdog: safe-stop when the newest complete observation is
+    /// older than this many control periods (the controller's default is 3).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    watchdog_cycles: u32,
+}
+
+/// `hil-sim run`: closed-loop episodes over the bus.
+#[derive(Args)]
+struct RunArgs {
+    /// Policy file.
+    #[arg(long)]
+    policy: PathBuf,
+    /// Episodes.
+    #[arg(long, default_value_t = 1)]
+    episodes: u32,
+    /// Run seed; episode i starts from `episode_seed(seed, i)` as in `trainer eval`.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
+    #[arg(long, default_value = "stack")]
+    task: String,
+    /// Which plant (default: mujoco when built with the `mujoco` feature, else synthetic).
+    #[arg(long, value_enum, default_value_t = DEFAULT_PLANT)]
+    plant: PlantKind,
+    /// Wall clock at 20 Hz instead of lockstep.
+    #[arg(long)]
+    realtime: bool,
+    /// Steps per episode for the synthetic plant (the MuJoCo plant uses the task's length).
+    #[arg(long, default_value_t = 150)]
+    steps: u32,
+    /// candump-format log.
+    #[arg(long)]
+    log: Option<PathBuf>,
+}
+
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Command::Bus {
-            port,
-            log,
-            policy,
-            controller,
-            seconds,
-            queue,
-            sndbuf,
-            lockstep,
-            watchdog_cycles,
-        } => bus_command(
-            port,
-            log,
-            policy,
-            controller,
-            seconds,
-            queue,
-            sndbuf,
-            lockstep,
-            watchdog_cycles,
-        ),
+        Command::Bus(args) => bus_command(args),
         Command::Plant {
             connect,
             episodes,
@@ -201,16 +189,7 @@ fn main() -> Result<()> {
             steps,
             actions,
         } => plant_command(connect, episodes, seed, &task, plant, steps, actions),
-        Command::Run {
-            policy,
-            episodes,
-            seed,
-            task,
-            plant,
-            realtime,
-            steps,
-            log,
-        } => run_command(&policy, episodes, seed, &task, plant, realtime, steps, log),
+        Command::Run(args) => run_command(&args),
         Command::Bench {
             cycles,
             realtime,
@@ -228,24 +207,13 @@ fn main() -> Result<()> {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn bus_command(
-    port: u16,
-    log: Option<PathBuf>,
-    policy: Option<PathBuf>,
-    controller: bool,
-    seconds: Option<f64>,
-    queue: usize,
-    sndbuf: Option<usize>,
-    lockstep: bool,
-    watchdog_cycles: u32,
-) -> Result<()> {
+fn bus_command(args: BusArgs) -> Result<()> {
     let bus = Bus::start(BusConfig {
-        addr: SocketAddr::from(([127, 0, 0, 1], port)),
-        log,
-        queue_depth: queue,
-        send_buffer: sndbuf,
-        clock: if lockstep {
+        addr: SocketAddr::from(([127, 0, 0, 1], args.port)),
+        log: args.log,
+        queue_depth: args.queue,
+        send_buffer: args.sndbuf,
+        clock: if args.lockstep {
             BusClock::Virtual
         } else {
             BusConfig::default().clock
@@ -253,8 +221,8 @@ fn bus_command(
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));
-    let node = if controller || policy.is_some() {
-        let bytes = match &policy {
+    let node = if args.controller || args.policy.is_some() {
+        let bytes = match &args.policy {
             Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
             None => None,
         };
@@ -262,10 +230,10 @@ fn bus_command(
             bus.addr(),
             bytes,
             dex_runtime::ControllerConfig {
-                watchdog_cycles,
+                watchdog_cycles: args.watchdog_cycles,
                 ..dex_runtime::ControllerConfig::default()
             },
-            if lockstep {
+            if args.lockstep {
                 TimeMode::Lockstep
             } else {
                 TimeMode::RealTime
@@ -279,7 +247,11 @@ fn bus_command(
     println!("hil-sim bus listening on {}", bus.addr());
     std::io::stdout().flush()?;
     let start = Instant::now();
-    while !bus.quit_requested() && seconds.is_none_or(|s| start.elapsed().as_secs_f64() < s) {
+    while !bus.quit_requested()
+        && args
+            .seconds
+            .is_none_or(|s| start.elapsed().as_secs_f64() < s)
+    {
         if node.as_ref().is_some_and(|n| n.is_finished()) {
             break;
         }
@@ -298,30 +270,21 @@ fn bus_command(
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_command(
-    policy: &PathBuf,
-    episodes: u32,
-    seed: u64,
-    task: &str,
-    plant_kind: PlantKind,
-    realtime: bool,
-    steps: u32,
-    log: Option<PathBuf>,
-) -> Result<()> {
-    let bytes = std::fs::read(policy).with_context(|| format!("reading {}", policy.display()))?;
-    let mut plant = make_plant(plant_kind, task, steps)?;
+fn run_command(args: &RunArgs) -> Result<()> {
+    let bytes = std::fs::read(&args.policy)
+        .with_context(|| format!("reading {}", args.policy.display()))?;
+    let mut plant = make_plant(args.plant, &args.task, args.steps)?;
     let bus = Bus::start(BusConfig {
-        clock: if realtime {
+        clock: if args.realtime {
             BusClock::Wall
         } else {
             BusClock::Virtual
         },
-        log,
+        log: args.log.clone(),
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));
-    let mode = if realtime {
+    let mode = if args.realtime {
         TimeMode::RealTime
     } else {
         TimeMode::Lockstep
@@ -335,7 +298,7 @@ fn run_command(
         Arc::clone(&stop),
         Some(Arc::clone(&status)),
     )?;
-    let timing = if realtime {
+    let timing = if args.realtime {
         PlantTiming::RealTime
     } else {
         PlantTiming::Lockstep
@@ -345,8 +308,12 @@ fn run_command(
         node.start_controller()?;
         let mut successes = 0;
         let mut total = 0.0;
-        for e in 0..episodes {
-            let r = node.episode(plant.as_mut(), episode_seed(seed, u64::from(e)), u32::MAX)?;
+        for e in 0..args.episodes {
+            let r = node.episode(
+                plant.as_mut(),
+                episode_seed(args.seed, u64::from(e)),
+                u32::MAX,
+            )?;
             println!(
                 "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
                 r.seed, r.episode_return, r.success, r.steps, r.steps_without_action
@@ -363,10 +330,15 @@ fn run_command(
     let _ = node.join();
     let (successes, total) = result?;
     println!(
-        "success {successes}/{episodes} ({:.1}%) mean return {:.4} mode {}",
-        100.0 * f64::from(successes) / f64::from(episodes.max(1)),
-        total / f64::from(episodes.max(1)),
-        if realtime { "realtime" } else { "lockstep" }
+        "success {successes}/{} ({:.1}%) mean return {:.4} mode {}",
+        args.episodes,
+        100.0 * f64::from(successes) / f64::from(args.episodes.max(1)),
+        total / f64::from(args.episodes.max(1)),
+        if args.realtime {
+            "realtime"
+        } else {
+            "lockstep"
+        }
     );
     println!(
         "controller: {}",
