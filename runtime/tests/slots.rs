@@ -96,14 +96,31 @@ fn run(c: &mut Ctl, slots: &mut PolicySlots<'_>, n: usize, t0: u64) -> Vec<[f32;
     }
     c.on_frame_slots(&nmt_frame(NmtCommand::Start, NODE), &clock, slots);
     assert_eq!(c.state(), State::Operational);
+    let out = trace_actions(c, &clock, &mut tx, n, t0, |c, f| {
+        c.on_frame_slots(f, &clock, slots)
+    });
+    c.on_frame_slots(&nmt_frame(NmtCommand::Stop, NODE), &clock, slots);
+    out
+}
+
+/// Steps an operational controller through `n` trace observations at 20 Hz from `t0`, each
+/// delivered by `deliver` (with or without the slots), checks each gives one action, and returns
+/// the actions.
+fn trace_actions<'p>(
+    c: &mut Controller<'p, 64>,
+    clock: &MockClock,
+    tx: &mut [E2eSender; OBS_FRAMES],
+    n: usize,
+    t0: u64,
+    mut deliver: impl FnMut(&mut Controller<'p, 64>, &CanFrame) -> Outbox,
+) -> Vec<[f32; ACT_DIM]> {
     let mut out = Vec::new();
     for (k, obs) in observation_trace(n, 5).iter().enumerate() {
         clock.set(t0 + 50_000 * (k as u64 + 1));
-        c.poll(&clock);
+        c.poll(clock);
         let mut sent = 0;
-        for f in encode_observation(obs, (k + 1) as u8 & 0x0F, &mut tx) {
-            sent += c
-                .on_frame_slots(&f, &clock, slots)
+        for f in encode_observation(obs, (k + 1) as u8 & 0x0F, tx) {
+            sent += deliver(c, &f)
                 .iter()
                 .filter(|a| {
                     let id = a.standard_id().unwrap();
@@ -120,7 +137,6 @@ fn run(c: &mut Ctl, slots: &mut PolicySlots<'_>, n: usize, t0: u64) -> Vec<[f32;
         );
         out.push(*c.last_action());
     }
-    c.on_frame_slots(&nmt_frame(NmtCommand::Stop, NODE), &clock, slots);
     out
 }
 
@@ -134,31 +150,7 @@ fn reference(image: &[u8], n: usize) -> Vec<[f32; ACT_DIM]> {
     c.poll(&clock);
     c.on_frame(&nmt_frame(NmtCommand::Start, NODE), &clock);
     let mut tx = [E2eSender::default(); OBS_FRAMES];
-    let mut out = Vec::new();
-    for (k, obs) in observation_trace(n, 5).iter().enumerate() {
-        clock.set(50_000 * (k as u64 + 1));
-        c.poll(&clock);
-        let mut sent = 0;
-        for f in encode_observation(obs, (k + 1) as u8 & 0x0F, &mut tx) {
-            sent += c
-                .on_frame(&f, &clock)
-                .iter()
-                .filter(|a| {
-                    let id = a.standard_id().unwrap();
-                    (ACTION_BASE_ID..ACTION_BASE_ID + ACTION_FRAMES as u16).contains(&id)
-                })
-                .count();
-        }
-        assert_eq!(
-            sent,
-            ACTION_FRAMES,
-            "step {k}: one action; {:?} {:?}",
-            c.state(),
-            c.diagnostics()
-        );
-        out.push(*c.last_action());
-    }
-    out
+    trace_actions(&mut c, &clock, &mut tx, n, 0, |c, f| c.on_frame(f, &clock))
 }
 
 fn bits(a: &[[f32; ACT_DIM]]) -> Vec<u32> {
