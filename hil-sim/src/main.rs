@@ -47,21 +47,8 @@ enum Command {
         /// The bus, e.g. 127.0.0.1:29536.
         #[arg(long)]
         connect: SocketAddr,
-        /// Episodes.
-        #[arg(long, default_value_t = 1)]
-        episodes: u32,
-        /// Run seed; episode i starts from `episode_seed(seed, i)` as in `trainer eval`.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Task (MuJoCo plant): grasp, stack-in-hand, stack, reach.
-        #[arg(long, default_value = "stack")]
-        task: String,
-        /// Which plant.
-        #[arg(long, value_enum, default_value_t = DEFAULT_PLANT)]
-        plant: PlantKind,
-        /// Steps per episode for the synthetic plant.
-        #[arg(long, default_value_t = 150)]
-        steps: u32,
+        #[command(flatten)]
+        episodes: EpisodeArgs,
         /// Write every applied command, one line per step: `episode step a0 ... a8` (shortest
         /// round-trip decimal, as `trainer eval --actions` writes them).
         #[arg(long)]
@@ -148,12 +135,9 @@ struct BusArgs {
     watchdog_cycles: u32,
 }
 
-/// `hil-sim run`: closed-loop episodes over the bus.
+/// The episodes of `hil-sim plant` and `hil-sim run`: how many, from which starts, on which plant.
 #[derive(Args)]
-struct RunArgs {
-    /// Policy file.
-    #[arg(long)]
-    policy: PathBuf,
+struct EpisodeArgs {
     /// Episodes.
     #[arg(long, default_value_t = 1)]
     episodes: u32,
@@ -166,12 +150,22 @@ struct RunArgs {
     /// Which plant (default: mujoco when built with the `mujoco` feature, else synthetic).
     #[arg(long, value_enum, default_value_t = DEFAULT_PLANT)]
     plant: PlantKind,
-    /// Wall clock at 20 Hz instead of lockstep.
-    #[arg(long)]
-    realtime: bool,
     /// Steps per episode for the synthetic plant (the MuJoCo plant uses the task's length).
     #[arg(long, default_value_t = 150)]
     steps: u32,
+}
+
+/// `hil-sim run`: closed-loop episodes over the bus.
+#[derive(Args)]
+struct RunArgs {
+    /// Policy file.
+    #[arg(long)]
+    policy: PathBuf,
+    #[command(flatten)]
+    episodes: EpisodeArgs,
+    /// Wall clock at 20 Hz instead of lockstep.
+    #[arg(long)]
+    realtime: bool,
     /// candump-format log.
     #[arg(long)]
     log: Option<PathBuf>,
@@ -183,12 +177,8 @@ fn main() -> Result<()> {
         Command::Plant {
             connect,
             episodes,
-            seed,
-            task,
-            plant,
-            steps,
             actions,
-        } => plant_command(connect, episodes, seed, &task, plant, steps, actions),
+        } => plant_command(connect, &episodes, actions),
         Command::Run(args) => run_command(&args),
         Command::Bench {
             cycles,
@@ -273,7 +263,11 @@ fn bus_command(args: BusArgs) -> Result<()> {
 fn run_command(args: &RunArgs) -> Result<()> {
     let bytes = std::fs::read(&args.policy)
         .with_context(|| format!("reading {}", args.policy.display()))?;
-    let mut plant = make_plant(args.plant, &args.task, args.steps)?;
+    let mut plant = make_plant(
+        args.episodes.plant,
+        &args.episodes.task,
+        args.episodes.steps,
+    )?;
     let bus = Bus::start(BusConfig {
         clock: if args.realtime {
             BusClock::Wall
@@ -308,10 +302,10 @@ fn run_command(args: &RunArgs) -> Result<()> {
         node.start_controller()?;
         let mut successes = 0;
         let mut total = 0.0;
-        for e in 0..args.episodes {
+        for e in 0..args.episodes.episodes {
             let r = node.episode(
                 plant.as_mut(),
-                episode_seed(args.seed, u64::from(e)),
+                episode_seed(args.episodes.seed, u64::from(e)),
                 u32::MAX,
             )?;
             println!(
@@ -331,9 +325,9 @@ fn run_command(args: &RunArgs) -> Result<()> {
     let (successes, total) = result?;
     println!(
         "success {successes}/{} ({:.1}%) mean return {:.4} mode {}",
-        args.episodes,
-        100.0 * f64::from(successes) / f64::from(args.episodes.max(1)),
-        total / f64::from(args.episodes.max(1)),
+        args.episodes.episodes,
+        100.0 * f64::from(successes) / f64::from(args.episodes.episodes.max(1)),
+        total / f64::from(args.episodes.episodes.max(1)),
         if args.realtime {
             "realtime"
         } else {
@@ -377,16 +371,9 @@ fn node_command(_iface: &str, _policy: Option<PathBuf>) -> Result<()> {
 }
 
 /// `hil-sim plant`: lockstep episodes against a controller on another process's bus.
-fn plant_command(
-    addr: SocketAddr,
-    episodes: u32,
-    seed: u64,
-    task: &str,
-    plant_kind: PlantKind,
-    steps: u32,
-    actions: Option<PathBuf>,
-) -> Result<()> {
-    let mut plant = make_plant(plant_kind, task, steps)?;
+fn plant_command(addr: SocketAddr, ep: &EpisodeArgs, actions: Option<PathBuf>) -> Result<()> {
+    let (episodes, seed) = (ep.episodes, ep.seed);
+    let mut plant = make_plant(ep.plant, &ep.task, ep.steps)?;
     let mut node = PlantNode::connect_remote(addr, PlantTiming::Lockstep, 0x10)
         .with_context(|| format!("cannot reach the bus at {addr}"))?;
     node.start_controller()?;
