@@ -278,12 +278,17 @@ def emcy_codes(msgs):
     return [DB.decode_message(EMCY_ID, m.data, decode_choices=False)["error_code"] for m in msgs if m.arbitration_id == EMCY_ID]
 
 
-@pytest.fixture
-def operational(sim):
-    """A started controller (good policy) and a python-can bus on it."""
-    s = sim()
+def started(s):
+    """Starts the controller of bus `s` (NMT start once it is pre-operational); returns `s` and a
+    python-can bus on it."""
     bus = s.bus()
     wait_heartbeat(bus, PREOP, 2.0)
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
     return s, bus
+
+
+@pytest.fixture
+def operational(sim):
+    """A started controller (good policy) and a python-can bus on it."""
+    return started(sim())

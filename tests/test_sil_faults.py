@@ -6,7 +6,7 @@ import pytest
 
 from conftest import (
     DB, EMCY_ID, HEARTBEAT_ID, NMT_START, OPERATIONAL, PERIOD, PREOP, STOPPED, PlantTx, collect,
-    crc8_sae_j1850, decode_action, emcy_codes, nmt, observation, protect, wait_heartbeat,
+    crc8_sae_j1850, decode_action, emcy_codes, nmt, observation, protect, started, wait_heartbeat,
 )
 
 
@@ -47,12 +47,7 @@ def lossy(sim):
     two-period gap they make leaves 50 ms for the harness's own lateness, which a loaded 2-core
     machine exceeded (1 run in 7, SafeStop on ObservationTimeout). The watchdog itself is tested
     with the default (test_observation_timeout_safe_stops_with_emcy_8250)."""
-    s = sim(extra=["--watchdog-cycles", "6"])
-    bus = s.bus()
-    wait_heartbeat(bus, PREOP, 2.0)
-    nmt(bus, NMT_START)
-    wait_heartbeat(bus, OPERATIONAL, 1.0)
-    return s, bus
+    return started(sim(extra=["--watchdog-cycles", "6"]))
 
 
 def test_observation_timeout_safe_stops_with_emcy_8250(operational):
