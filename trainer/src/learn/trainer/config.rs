@@ -1,0 +1,182 @@
+//! The settings of a run: replay, evaluation protocol and everything [`RunConfig`] holds.
+
+use super::*;
+
+/// Replay settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReplayConfig {
+    /// Total capacity in transitions; with per-worker buffers each holds `capacity / workers`.
+    pub capacity: usize,
+    /// One buffer shared by all workers (true) or one per worker (false).
+    pub shared: bool,
+}
+
+impl Default for ReplayConfig {
+    fn default() -> Self {
+        ReplayConfig {
+            capacity: 1_000_000,
+            shared: true,
+        }
+    }
+}
+
+/// The evaluation protocol.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvalConfig {
+    /// Evaluate after every this many training episodes (all workers together); 0 disables evaluation.
+    pub every_episodes: u64,
+    /// Noise-free episodes per evaluation.
+    pub episodes: usize,
+    /// Safety cap on an evaluation episode's length, for environments that never end one.
+    pub max_steps: usize,
+    /// Every evaluation uses the same `episodes` starts (so a curve shows learning, not which
+    /// starts were drawn); false draws fresh starts per evaluation (the paper's protocol).
+    pub fixed_starts: bool,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        EvalConfig {
+            every_episodes: 30,
+            episodes: 10,
+            max_steps: 10_000,
+            fixed_starts: true,
+        }
+    }
+}
+
+/// Everything a run needs besides the environment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RunConfig {
+    /// Networks and the DDPG update.
+    pub ddpg: DdpgConfig,
+    /// Adam for the actor (the paper tunes only learning rates).
+    pub actor_adam: AdamConfig,
+    /// Adam for the critic.
+    pub critic_adam: AdamConfig,
+    /// Worker threads W (1 = DPG-R).
+    pub workers: usize,
+    /// Mini-batch updates per environment step R (per worker).
+    pub updates_per_step: usize,
+    /// Replay buffer(s).
+    pub replay: ReplayConfig,
+    /// Exploration noise.
+    pub noise: NoiseConfig,
+    /// Transitions in the sampled buffer before updates start.
+    pub learning_starts: usize,
+    /// Evaluation protocol.
+    pub eval: EvalConfig,
+    /// Cut training episodes after this many steps (the environment's own limit applies too).
+    pub train_episode_steps: Option<usize>,
+    /// Observation normalisation (off by default; see [`Trainer::policy_params`] for export).
+    pub obs_norm: ObsNormConfig,
+    /// Quantisation-aware training of the actor (off by default; see [`crate::learn::quantise`]).
+    pub quantise: QuantiseConfig,
+    /// TD3's stabilisers (all off by default; see [`crate::learn::td3`]).
+    pub td3: Td3Config,
+    /// n-step returns (1: the paper's one-step targets; see [`crate::learn::n_step`]).
+    pub n_step: usize,
+    /// Demonstrations in the batches and the cloning term (off by default; see
+    /// [`crate::learn::demo_data`]); the buffer itself is given with [`Trainer::set_demonstrations`].
+    pub demos: DemoDataConfig,
+    /// Seed of everything random in the run.
+    pub seed: u64,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            ddpg: DdpgConfig::default(),
+            actor_adam: AdamConfig {
+                lr: 1e-4,
+                ..AdamConfig::default()
+            },
+            critic_adam: AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+            workers: 1,
+            updates_per_step: 1,
+            replay: ReplayConfig::default(),
+            noise: NoiseConfig::default(),
+            learning_starts: 1_000,
+            eval: EvalConfig::default(),
+            train_episode_steps: None,
+            obs_norm: ObsNormConfig::default(),
+            quantise: QuantiseConfig::default(),
+            td3: Td3Config::default(),
+            n_step: 1,
+            demos: DemoDataConfig::default(),
+            seed: 0,
+        }
+    }
+}
+
+impl RunConfig {
+    /// Checks ranges that would make a run meaningless.
+    pub fn validate(&self) -> Result<(), LearnError> {
+        let bad = |field, why| Err(LearnError::Config { field, why });
+        if self.workers == 0 {
+            return bad("workers", "must be at least 1");
+        }
+        if self.ddpg.batch_size == 0 {
+            return bad("ddpg.batch_size", "must be at least 1");
+        }
+        if self.replay.capacity < self.workers {
+            return bad(
+                "replay.capacity",
+                "must hold at least one transition per worker",
+            );
+        }
+        if !(self.ddpg.gamma >= 0.0 && self.ddpg.gamma <= 1.0) {
+            return bad("ddpg.gamma", "must be in [0, 1]");
+        }
+        self.noise.validate(None)?;
+        self.td3.validate()?;
+        self.demos.validate()?;
+        if self.n_step == 0 || self.n_step > 100 {
+            return bad("n_step", "must be in 1..=100");
+        }
+        if self.obs_norm.frozen_from_demos && !(self.obs_norm.enabled && self.demos.uses_demos()) {
+            return bad(
+                "obs_norm.frozen_from_demos",
+                "needs obs_norm.enabled and demonstrations in the batches (demos.fraction > 0)",
+            );
+        }
+        if self.demos.uses_demos() && self.quantise.aware_from.is_some() {
+            return bad(
+                "demos.fraction",
+                "demonstrations with quantisation-aware training are not supported",
+            );
+        }
+        for (field, a) in [
+            ("actor_adam", &self.actor_adam),
+            ("critic_adam", &self.critic_adam),
+        ] {
+            let ok = a.lr > 0.0
+                && a.lr.is_finite()
+                && (0.0..1.0).contains(&a.beta1)
+                && (0.0..1.0).contains(&a.beta2)
+                && a.eps > 0.0;
+            if !ok {
+                return bad(field, "lr > 0, betas in [0, 1), eps > 0");
+            }
+        }
+        if self.quantise.aware_from.is_some() && self.obs_norm.enabled {
+            return bad(
+                "quantise.aware_from",
+                "needs obs_norm off: folding the normaliser into the first layer would move its \
+                 weights off the int8 grid",
+            );
+        }
+        if let crate::learn::ddpg::TargetUpdate::Polyak { tau } = self.ddpg.target
+            && !(tau > 0.0 && tau <= 1.0)
+        {
+            return bad("ddpg.target.tau", "must be in (0, 1]");
+        }
+        Ok(())
+    }
+}
