@@ -93,6 +93,7 @@ impl Options {
             "along-demonstrations" => StartScheme::AlongDemonstrations {
                 train_episode_steps: episode_steps
                     .unwrap_or(dex_env::start_states::DEMO_TRAIN_EPISODE_STEPS),
+                demonstrations: 0,
             },
             other => return Err(Error::UnknownStart(other.to_owned())),
         };

@@ -12,14 +12,25 @@
 //!   cost is `n` environment steps and one state copy). Training episodes are then
 //!   `train_episode_steps` long (50 in the paper).
 //!
+//!   With `demonstrations = P > 0` the demonstrations form a fixed set of P trajectories (a
+//!   dataset, the same for every run seed: trajectory `i` starts from the original start of seed
+//!   [`POOL_SEED_BASE`]` + i`, and only trajectories that solve the task are used). An episode
+//!   seed picks a trajectory and a state uniformly along it; each trajectory is simulated once,
+//!   when first picked, and its states kept, so a start costs one state copy instead of `n`
+//!   environment steps. The pick is a function of the seed alone, so a resumed run hands over the
+//!   same states as an uninterrupted one. Memory: about 2 kB per kept state (P = 500 Stack
+//!   trajectories: ~100 MB per environment). P = 0 runs a fresh demonstration at every start.
+//!
 //! Every handed-over state is a state the simulation reached by stepping: nothing is teleported, so
 //! contacts and velocities are consistent (`tests/env_start_states.rs` checks that a held brick stays
 //! held after the hand-over).
 
+use std::collections::HashMap;
+
 use dex_runtime::interface::ACT_DIM;
 
 use super::demo::Demonstrator;
-use super::environment::JacoEnv;
+use super::environment::{EnvSnapshot, JacoEnv};
 use super::error::EnvError;
 use super::observation::Observation;
 use super::rng::SeedRng;
@@ -31,6 +42,14 @@ pub const DEMO_TRAIN_EPISODE_STEPS: u32 = 50;
 /// Salt mixed into an episode seed for the scheme's own random choices, so that the original start
 /// drawn from a seed is the same under every scheme.
 const SCHEME_SALT: u64 = 0x5EED_57A7_E5C4_E3E5;
+
+/// Trajectory `i` of a demonstration pool starts from the original start of seed
+/// `POOL_SEED_BASE + i`: far above every seed range the project evaluates on (1,000,000 to
+/// 3,000,999) and the learner's episode seeds.
+pub const POOL_SEED_BASE: u64 = 1 << 40;
+
+/// The largest demonstration pool (memory: ~2 kB per kept state, ~100 states per trajectory).
+pub const MAX_POOL: u32 = 100_000;
 
 /// Where training episodes start.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -47,6 +66,9 @@ pub enum StartScheme {
     AlongDemonstrations {
         /// Steps of a training episode from such a state.
         train_episode_steps: u32,
+        /// Size of the fixed set of demonstration trajectories starts are drawn from (0: a fresh
+        /// demonstration at every start; see the module docs).
+        demonstrations: u32,
     },
 }
 
@@ -55,6 +77,7 @@ impl StartScheme {
     pub const fn along_demonstrations() -> Self {
         StartScheme::AlongDemonstrations {
             train_episode_steps: DEMO_TRAIN_EPISODE_STEPS,
+            demonstrations: 0,
         }
     }
 
@@ -72,9 +95,17 @@ impl StartScheme {
             ))),
             StartScheme::AlongDemonstrations {
                 train_episode_steps: 0,
+                ..
             } => Err(EnvError::StartScheme(
                 "training episodes along demonstrations need at least one step".into(),
             )),
+            StartScheme::AlongDemonstrations { demonstrations, .. }
+                if demonstrations > MAX_POOL =>
+            {
+                Err(EnvError::StartScheme(format!(
+                    "a pool of {demonstrations} demonstrations is more than {MAX_POOL}"
+                )))
+            }
             StartScheme::AlongDemonstrations { .. } => Ok(()),
         }
     }
@@ -84,6 +115,7 @@ impl StartScheme {
         match *self {
             StartScheme::AlongDemonstrations {
                 train_episode_steps,
+                ..
             } => train_episode_steps.min(task_steps),
             _ => task_steps,
         }
@@ -135,11 +167,17 @@ pub struct Handover {
     pub kind: StartKind,
 }
 
+/// One trajectory of a demonstration pool: the state after each step (empty when the
+/// demonstration did not solve the task).
+type Trajectory = Vec<EnvSnapshot>;
+
 /// Makes training starts for one environment under one scheme.
 #[derive(Clone)]
 pub struct StartStates<D: Demonstration = Demonstrator> {
     scheme: StartScheme,
     demo: D,
+    /// The demonstration pool's trajectories simulated so far, by index.
+    pool: HashMap<u32, Trajectory>,
 }
 
 impl<D: Demonstration> std::fmt::Debug for StartStates<D> {
@@ -163,13 +201,18 @@ impl<D: Demonstration> StartStates<D> {
         Self {
             scheme: StartScheme::Original,
             demo,
+            pool: HashMap::new(),
         }
     }
 
     /// Starts under `scheme`, with `demo` for demonstrations.
     pub fn new(scheme: StartScheme, demo: D) -> Result<Self, EnvError> {
         scheme.validate()?;
-        Ok(Self { scheme, demo })
+        Ok(Self {
+            scheme,
+            demo,
+            pool: HashMap::new(),
+        })
     }
 
     /// The scheme.
@@ -201,10 +244,69 @@ impl<D: Demonstration> StartStates<D> {
                     })
                 }
             }
-            StartScheme::AlongDemonstrations { .. } => {
-                self.along_demonstration(env, seed, &mut rng)
+            StartScheme::AlongDemonstrations {
+                demonstrations: 0, ..
+            } => self.along_demonstration(env, seed, &mut rng),
+            StartScheme::AlongDemonstrations { demonstrations, .. } => {
+                self.along_pooled_demonstration(env, demonstrations, &mut rng)
             }
         }
+    }
+
+    /// A state along one of the pool's `size` trajectories: the seed picks the trajectory (the
+    /// next one on, cyclically, where a demonstration failed) and the state uniformly along it.
+    fn along_pooled_demonstration(
+        &mut self,
+        env: &mut JacoEnv,
+        size: u32,
+        rng: &mut SeedRng,
+    ) -> Result<Handover, EnvError> {
+        // unit() < 1, so the index is below `size`.
+        let first = (rng.unit() * f64::from(size)) as u32;
+        let along = rng.unit();
+        for tried in 0..size {
+            let i = (first + tried) % size;
+            if !self.pool.contains_key(&i) {
+                let t = self.demonstrate(env, POOL_SEED_BASE + u64::from(i))?;
+                self.pool.insert(i, t);
+            }
+            let Some(t) = self.pool.get(&i).filter(|t| !t.is_empty()) else {
+                continue;
+            };
+            let n = t.len();
+            let k = ((along * n as f64) as usize).min(n - 1);
+            env.restore(&t[k])?;
+            return Ok(Handover {
+                observation: env.begin_episode(),
+                kind: StartKind::Demonstration {
+                    k: k as u32 + 1,
+                    n: n as u32,
+                    solved: true,
+                },
+            });
+        }
+        Err(EnvError::StartScheme(format!(
+            "none of the {size} pooled demonstrations solved the task"
+        )))
+    }
+
+    /// Every state of the demonstration from the original start of `seed`, up to and with its
+    /// first success; empty when it does not solve the task within the episode's budget.
+    fn demonstrate(&mut self, env: &mut JacoEnv, seed: u64) -> Result<Trajectory, EnvError> {
+        env.reset(seed)?;
+        self.demo.restart();
+        let budget = env.config().episode_steps.max(1);
+        let task = env.config().task;
+        let mut states = Vec::new();
+        for _ in 0..budget {
+            let action = self.demo.act(env)?;
+            let out = env.step(&action)?;
+            states.push(env.snapshot());
+            if task.is_success(out.predicates) {
+                return Ok(states);
+            }
+        }
+        Ok(Vec::new())
     }
 
     fn along_demonstration(

@@ -201,6 +201,10 @@ pub struct StartSettings {
     pub in_hand_probability: f64,
     /// Training episode length under `along-demonstrations` (the paper: 50; evaluation keeps 150).
     pub train_episode_steps: u32,
+    /// Under `along-demonstrations`: the size of the fixed set of demonstration trajectories the
+    /// starts are drawn from, each simulated once (0: a fresh demonstration at every start, which
+    /// costs its whole length in environment steps; `dex_env::start_states` module docs).
+    pub demonstrations: u32,
     /// Under `along-demonstrations`: an exported policy file to demonstrate instead of the
     /// scripted demonstrator.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -213,6 +217,7 @@ impl Default for StartSettings {
             scheme: StartArg::Original,
             in_hand_probability: 0.5,
             train_episode_steps: crate::env::start_states::DEMO_TRAIN_EPISODE_STEPS,
+            demonstrations: 0,
             demonstrator_policy: None,
         }
     }
@@ -228,6 +233,7 @@ impl StartSettings {
             },
             StartArg::AlongDemonstrations => StartScheme::AlongDemonstrations {
                 train_episode_steps: self.train_episode_steps,
+                demonstrations: self.demonstrations,
             },
         }
     }
@@ -527,7 +533,8 @@ mod tests {
         assert_eq!(
             s.start.scheme(),
             StartScheme::AlongDemonstrations {
-                train_episode_steps: 50
+                train_episode_steps: 50,
+                demonstrations: 0,
             }
         );
         std::fs::write(

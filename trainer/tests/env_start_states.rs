@@ -62,6 +62,11 @@ fn scheme_settings_are_checked() {
         },
         StartScheme::AlongDemonstrations {
             train_episode_steps: 0,
+            demonstrations: 0,
+        },
+        StartScheme::AlongDemonstrations {
+            train_episode_steps: 50,
+            demonstrations: dex_trainer::env::start_states::MAX_POOL + 1,
         },
     ] {
         assert!(StartStates::scripted(bad, Task::Stack).is_err(), "{bad:?}");
@@ -162,6 +167,64 @@ fn states_along_demonstrations_are_the_demonstrators_states_and_held_bricks_stay
     assert!(
         ks.iter().any(|&k| k < 40) && ks.iter().any(|&k| k > 60),
         "hand-overs should spread over the trajectory: {ks:?}"
+    );
+}
+
+/// A demonstration pool hands over, for a seed, a state of the demonstrator along one of its
+/// trajectories, the same whatever was drawn before (a fresh `StartStates`, an empty memo, gives
+/// the same state: what a resumed run sees), and draws its states from across the trajectories.
+#[test]
+fn a_demonstration_pool_hands_over_the_demonstrators_states_whatever_came_before() {
+    use dex_trainer::env::start_states::POOL_SEED_BASE;
+    let cfg = EnvConfig::new(Task::Stack);
+    let mut env = JacoEnv::new(scene(), cfg);
+    let pooled = StartScheme::AlongDemonstrations {
+        train_episode_steps: 50,
+        demonstrations: 3,
+    };
+    let mut starts = StartStates::scripted(pooled, Task::Stack).unwrap();
+    let seeds: Vec<u64> = (0..10).collect();
+    let first: Vec<_> = seeds
+        .iter()
+        .map(|&s| starts.reset(&mut env, s).unwrap())
+        .collect();
+    let mut fresh = StartStates::scripted(pooled, Task::Stack).unwrap();
+    let mut ns = Vec::new();
+    for (&seed, h) in seeds.iter().zip(&first).rev() {
+        let again = fresh.reset(&mut env, seed).unwrap();
+        assert_eq!(again.kind, h.kind, "seed {seed}");
+        assert_eq!(
+            bits(&again.observation),
+            bits(&h.observation),
+            "seed {seed}"
+        );
+        assert_eq!(env.steps_taken(), 0);
+        let StartKind::Demonstration { k, n, solved } = h.kind else {
+            panic!("{:?}", h.kind)
+        };
+        assert!(solved && (1..=n).contains(&k), "k {k} n {n}");
+        // The state after k steps of the demonstrator from one of the pool's three starts.
+        let found = (0..3).any(|i| {
+            let mut replay = JacoEnv::new(scene(), cfg);
+            replay.reset(POOL_SEED_BASE + i).unwrap();
+            let mut demo = Demonstrator::new(Task::Stack);
+            for _ in 0..k {
+                let a = demo.act(&replay);
+                replay.step(&a).unwrap();
+            }
+            bits(replay.observation()) == bits(&h.observation)
+        });
+        assert!(
+            found,
+            "seed {seed}: not a state of the pool's demonstrations"
+        );
+        ns.push(n);
+    }
+    ns.sort_unstable();
+    ns.dedup();
+    assert!(
+        ns.len() >= 2,
+        "ten seeds drew from one trajectory only: {ns:?}"
     );
 }
 
