@@ -91,9 +91,22 @@ mod with_mpi {
     /// Exit code of rank 0 after a failed distributed run (passed to `MPI_Abort`).
     const FAILED: i32 = 3;
 
+    /// Writes `line` and a newline to stderr in one `write` call. `eprintln!` writes each piece of
+    /// its format on its own (stderr is unbuffered), so under `mpirun`, which forwards every rank's
+    /// output as it comes, two ranks' lines could interleave mid-line; one write of less than
+    /// `PIPE_BUF` bytes to a pipe arrives whole.
+    fn line_to_stderr(line: &str) {
+        use std::io::Write;
+        let mut bytes = Vec::with_capacity(line.len() + 1);
+        bytes.extend_from_slice(line.as_bytes());
+        bytes.push(b'\n');
+        // Nothing sensible is left to do when stderr is gone.
+        let _ = std::io::stderr().lock().write_all(&bytes);
+    }
+
     /// One line of a rank's counters (stderr: rank 0's stdout is the run's output).
     fn report(rank: usize, wall_s: f64, p: &Progress, st: &ExchangeStats) {
-        eprintln!(
+        line_to_stderr(&format!(
             "rank {rank}: {} transitions ({:.1}/s), {} updates ({:.1}/s) in {wall_s:.1} s; \
              {} exchanges, {} refused, {:.0} bytes sent and {:.0} received per exchange, \
              latency mean {:.2} ms max {:.2} ms",
@@ -107,7 +120,7 @@ mod with_mpi {
             st.bytes_received as f64 / st.exchanges.max(1) as f64,
             st.mean_latency_s() * 1e3,
             st.latency_max_s * 1e3,
-        );
+        ));
     }
 
     pub(crate) fn train(a: &TrainArgs) -> anyhow::Result<()> {
@@ -139,14 +152,14 @@ mod with_mpi {
                 );
                 (r, server.stats())
             };
-            eprintln!(
+            line_to_stderr(&format!(
                 "rank 0: {} exchanges applied, {} messages refused, {} bytes sent, {} received in {:.1} s",
                 stats.exchanges,
                 stats.refused,
                 stats.bytes_sent,
                 stats.bytes_received,
                 t0.elapsed().as_secs_f64()
-            );
+            ));
             if let Err(e) = result {
                 eprintln!("error: {:#}", anyhow::Error::from(e));
                 // The other ranks would wait for rank 0 forever: end the job.
@@ -176,9 +189,11 @@ mod with_mpi {
         report(rank, t0.elapsed().as_secs_f64(), &progress, &stats);
         if let Some(o) = outcome {
             println!(
-                "point mass over {} ranks: success {:.2}, return {:.2}, {} transitions, {} updates",
+                "point mass over {} ranks: success {:.2}, best in-training success {:.2}, \
+                 return {:.2}, {} transitions, {} updates",
                 transport.size(),
                 o.success_rate,
+                o.best_eval_success,
                 o.mean_return,
                 o.progress.transitions,
                 o.progress.updates

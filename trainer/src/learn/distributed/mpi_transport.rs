@@ -2,14 +2,20 @@
 //!
 //! MPI is initialised with `MPI_THREAD_FUNNELED`: a rank runs W worker threads, but only the
 //! thread that initialised MPI (the run's calling thread) makes MPI calls, so FUNNELED is the level
-//! needed and it is checked. Receives are probes (`MPI_Improbe`) then matched receives of what is
-//! there, so no call waits for another rank; sends are `MPI_Isend`s kept in flight until
-//! `MPI_Test` completes them, so a rank that stops (SIGSTOP) cannot block its peer: the peer sees
-//! the send stay in flight ([`Transport::in_flight`]) and times the rank out.
+//! needed and it is checked. No call waits for another rank:
+//! - receives are probes (`MPI_Improbe`) then *non-blocking* matched receives (`MPI_Imrecv`),
+//!   kept until `MPI_Test` completes them. A matched message larger than the TCP transport's eager
+//!   limit (64 KiB: every push of 64-wide networks or more) arrives as a header first and its body
+//!   only when the sender's MPI library next makes progress; a blocking matched receive of it
+//!   waited for ever when the sender was stopped (SIGSTOP) or killed between the two, which hung
+//!   rank 0 in about one lost-rank test in seven. Now the message is simply not delivered, the
+//!   sender's silence grows and the server times it out;
+//! - sends are `MPI_Isend`s kept in flight until `MPI_Test` completes them, so a rank that stops
+//!   cannot block its peer either: the peer sees the send stay in flight
+//!   ([`Transport::in_flight`]) and times the rank out.
 
 use super::{DistributedError, Transport};
 use mpi::environment::Universe;
-use mpi::point_to_point::MatchedReceiveVec;
 use mpi::request::{Request, StaticScope};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
@@ -24,10 +30,18 @@ struct Pending {
     buf: *mut [u8],
 }
 
+/// A matched receive in flight: MPI writes `buf` until the request completes.
+struct Receiving {
+    from: usize,
+    req: Request<'static, [u8], StaticScope>,
+    buf: *mut [u8],
+}
+
 /// The MPI world as a [`Transport`]. Dropping it finalises MPI.
 pub struct MpiTransport {
     world: SimpleCommunicator,
     pending: Vec<Pending>,
+    receiving: Vec<Receiving>,
     // Last: finalised after everything above is gone.
     _universe: Universe,
 }
@@ -65,6 +79,7 @@ impl MpiTransport {
         Ok(MpiTransport {
             world: universe.world(),
             pending: Vec::new(),
+            receiving: Vec::new(),
             _universe: universe,
         })
     }
@@ -105,20 +120,58 @@ impl Transport for MpiTransport {
         from: Option<usize>,
     ) -> Result<Option<(usize, Vec<u8>)>, DistributedError> {
         self.progress();
-        let probed = match from {
-            Some(r) => self
-                .world
-                .process_at_rank(r as i32)
-                .immediate_matched_probe_with_tag(TAG),
-            None => self
-                .world
-                .any_process()
-                .immediate_matched_probe_with_tag(TAG),
-        };
-        Ok(probed.map(|m| {
-            let (bytes, status) = m.matched_receive_vec::<u8>();
-            (status.source_rank() as usize, bytes)
-        }))
+        // Start a matched receive for every message that has arrived (from `from`, or anyone).
+        loop {
+            let probed = match from {
+                Some(r) => self
+                    .world
+                    .process_at_rank(r as i32)
+                    .immediate_matched_probe_with_tag(TAG),
+                None => self
+                    .world
+                    .any_process()
+                    .immediate_matched_probe_with_tag(TAG),
+            };
+            let Some((message, status)) = probed else {
+                break;
+            };
+            let len = usize::try_from(status.count(u8::equivalent_datatype())).unwrap_or(0);
+            let buf: *mut [u8] = Box::into_raw(vec![0u8; len].into_boxed_slice());
+            // SAFETY: the allocation stays alive until the request completes (then `try_recv`
+            // takes it back with `Box::from_raw`) or, for one that never completes, forever.
+            let target: &'static mut [u8] = unsafe { &mut *buf };
+            let req = message.immediate_matched_receive_into(StaticScope, target);
+            self.receiving.push(Receiving {
+                from: status.source_rank() as usize,
+                req,
+                buf,
+            });
+        }
+        // Hand over the first complete one; a sender's messages in the order MPI matched them
+        // (one still arriving holds back that sender's later ones).
+        let mut done = None;
+        let mut held: Vec<usize> = Vec::new();
+        let mut still = Vec::with_capacity(self.receiving.len());
+        for r in self.receiving.drain(..) {
+            if done.is_some() || held.contains(&r.from) || from.is_some_and(|f| f != r.from) {
+                still.push(r);
+                continue;
+            }
+            match r.req.test() {
+                Ok(_) => {
+                    // SAFETY: `buf` came from `Box::into_raw` above and only the request, now
+                    // complete, borrowed it.
+                    let bytes = unsafe { Box::from_raw(r.buf) }.into_vec();
+                    done = Some((r.from, bytes));
+                }
+                Err(req) => {
+                    held.push(r.from);
+                    still.push(Receiving { req, ..r });
+                }
+            }
+        }
+        self.receiving = still;
+        Ok(done)
     }
 
     fn send(&mut self, to: usize, bytes: Vec<u8>) -> Result<(), DistributedError> {
@@ -147,11 +200,15 @@ impl Transport for MpiTransport {
 
 impl Drop for MpiTransport {
     fn drop(&mut self) {
-        // Completed sends give their buffers back; any still in flight keep them (leaked) and
-        // their requests are forgotten rather than dropped (the crate panics on that).
+        // Completed sends give their buffers back; sends and receives still in flight keep
+        // theirs (leaked) and their requests are forgotten rather than dropped (the crate panics
+        // on that).
         self.progress();
         for p in self.pending.drain(..) {
             std::mem::forget(p.req);
+        }
+        for r in self.receiving.drain(..) {
+            std::mem::forget(r.req);
         }
     }
 }
