@@ -1,0 +1,384 @@
+//! The training pipeline of a run folder (`trainer train`), front-end free: for each seed, train
+//! with checkpoints (fresh or resumed), keep the best checkpoint on the selection starts, export the
+//! selected policy, evaluate the file through the runtime, and at the end plot the folder.
+//!
+//! A front end turns its input into one [`TrainSettings`] value, makes a [`TrainPlan`] of it
+//! (validated, start states built) and calls [`TrainPlan::train`]; progress arrives as
+//! [`TrainEvent`]s, nothing is printed here.
+//!
+//! A run folder `OUT` holds `settings.toml`, `.lock` and per seed `seed-S/`: `checkpoint.bin`,
+//! `settings.toml`, `eval.jsonl`, `best.json` + `best_actor.bin` (the selected checkpoint),
+//! `demos.dxdm` (recorded demonstrations, when asked for), `policy.dxpl` and `final_eval.json`.
+
+use std::fs::OpenOptions;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+
+use crate::demos::DemoError;
+use crate::env::{Demonstrator, EnvError, Scene, StartStates};
+use crate::evaluate::{EvalError, EvalSettings, PolicyEval, evaluate_policy_file};
+use crate::export::{ExportError, ExportInfo, ObsNormalisation, export_actor};
+use crate::jaco::JacoLearnEnv;
+use crate::learn::distributed::server::Server;
+use crate::learn::distributed::worker::WorkerRank;
+use crate::learn::distributed::{DistributedConfig, DistributedError, ExchangeStats, Transport};
+use crate::learn::{DemoBuffer, EvalRecord, Event, LearnError, Progress, RunSummary, Trainer};
+use crate::policy_demo::{DemoSource, PolicyDemonstration};
+use crate::run_lock::{RunLock, RunLockError};
+use crate::run_plots::{RunPlotError, plot_run};
+use crate::train_settings::{SettingsError, TrainSettings};
+
+mod atomic_write;
+mod demonstrations;
+mod distributed;
+mod run_log;
+mod seed_export;
+mod seed_run;
+mod selection;
+
+pub use atomic_write::write_atomic;
+use demonstrations::demonstrations;
+pub use distributed::ParameterServer;
+use run_log::truncate_log;
+pub use seed_export::export_selected;
+use seed_run::train_seed;
+use selection::select_best;
+pub use selection::{BestPolicy, SELECTION_SEED, read_best};
+
+/// Why a training run (or the export of one of its seeds) failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TrainRunError {
+    /// The settings are not valid, or could not be written.
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// `start.demonstrator_policy` could not be read.
+    #[error("cannot read demonstrator policy {}", path.display())]
+    DemonstratorRead {
+        /// The policy file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// `start.demonstrator_policy` is not a usable policy file.
+    #[error("demonstrator policy {}", path.display())]
+    DemonstratorPolicy {
+        /// The policy file.
+        path: PathBuf,
+        /// The cause.
+        source: EvalError,
+    },
+    /// The start states could not be built.
+    #[error("invalid [start] settings")]
+    StartStates(#[source] EnvError),
+    /// Another trainer works in the run folder.
+    #[error(transparent)]
+    Lock(#[from] RunLockError),
+    /// A folder or file could not be created.
+    #[error("cannot create {}", path.display())]
+    Create {
+        /// The folder or file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A file could not be opened.
+    #[error("cannot open {}", path.display())]
+    Open {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A file could not be written (put in place).
+    #[error("cannot write {}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Reading, writing or flushing a file or folder failed (the message is the system's).
+    #[error("{error}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The cause.
+        error: std::io::Error,
+    },
+    /// An evaluation record could not be appended to a seed's `eval.jsonl`.
+    #[error("cannot append to eval.jsonl")]
+    AppendLog {
+        /// The log file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A seed's checkpoint exists and the run was not asked to resume.
+    #[error("{} exists: add --resume to continue it, or choose another --out", path.display())]
+    CheckpointExists {
+        /// The checkpoint.
+        path: PathBuf,
+    },
+    /// A seed's checkpoint could not be loaded to resume it.
+    #[error("cannot resume from {}", path.display())]
+    Resume {
+        /// The checkpoint.
+        path: PathBuf,
+        /// The cause.
+        source: LearnError,
+    },
+    /// The checkpoint was trained with other settings than the run's.
+    #[error(
+        "settings differ from the checkpoint's in {} (learner, task, reward, start scheme or \
+         demonstrations); resume with the same settings",
+        dir.display()
+    )]
+    SettingsDiffer {
+        /// The seed's folder.
+        dir: PathBuf,
+    },
+    /// A checkpoint could not be written.
+    #[error("cannot write checkpoint {}", path.display())]
+    SaveCheckpoint {
+        /// The checkpoint.
+        path: PathBuf,
+        /// The cause.
+        source: LearnError,
+    },
+    /// `best.json` does not parse.
+    #[error("{} is damaged", path.display())]
+    DamagedBest {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error.
+        source: serde_json::Error,
+    },
+    /// `best_actor.bin` is not a whole number of `f32`s.
+    #[error("{} is damaged (length {len})", path.display())]
+    DamagedBestActor {
+        /// The file.
+        path: PathBuf,
+        /// Its length in bytes.
+        len: usize,
+    },
+    /// A record could not be written as JSON.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// The learner failed.
+    #[error(transparent)]
+    Learn(#[from] LearnError),
+    /// Evaluating a policy file failed.
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    /// Exporting the actor failed.
+    #[error(transparent)]
+    Export(#[from] ExportError),
+    /// Loading or recording demonstrations failed.
+    #[error(transparent)]
+    Demos(#[from] DemoError),
+    /// The settings do not go with a distributed run.
+    #[error("not supported in a distributed run: {why}")]
+    NotDistributable {
+        /// What and why.
+        why: &'static str,
+    },
+}
+
+/// An [`TrainRunError::Io`] maker for `path`.
+fn io_at(path: &Path) -> impl FnOnce(std::io::Error) -> TrainRunError + '_ {
+    move |error| TrainRunError::Io {
+        path: path.to_path_buf(),
+        error,
+    }
+}
+
+/// What a training run tells its front end, in order, on the calling thread.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum TrainEvent<'a> {
+    /// The run folder is locked and its `settings.toml` written; seeds follow.
+    Started {
+        /// The run's settings.
+        settings: &'a TrainSettings,
+    },
+    /// A seed's demonstrations are being recorded (none reusable in its folder).
+    RecordingDemos {
+        /// The seed.
+        seed: u64,
+        /// Markov-demonstrator episodes to record.
+        episodes: u32,
+        /// The demo file they go to.
+        path: &'a Path,
+    },
+    /// A seed's demonstration buffer is in place.
+    DemosLoaded {
+        /// The seed.
+        seed: u64,
+        /// Demonstration transitions.
+        transitions: usize,
+        /// Fraction of each mini-batch drawn from them.
+        fraction: f32,
+    },
+    /// A seed's training starts (or resumes).
+    SeedStarted {
+        /// The seed.
+        seed: u64,
+        /// The transition budget.
+        budget: u64,
+        /// The counters it starts from (non-zero when resumed).
+        progress: &'a Progress,
+    },
+    /// An evaluation of the learner finished (already appended to `eval.jsonl`).
+    Eval {
+        /// The seed.
+        seed: u64,
+        /// The record.
+        record: &'a EvalRecord,
+    },
+    /// Periodic counters of the learner.
+    Progress {
+        /// The seed.
+        seed: u64,
+        /// The counters.
+        progress: &'a Progress,
+    },
+    /// A checkpoint was evaluated on the selection starts.
+    Selection {
+        /// The seed.
+        seed: u64,
+        /// One line: transitions, success, starts, return, and whether it is the new best.
+        line: String,
+    },
+    /// The stop flag was raised: the seed's checkpoint is saved and the run ends here.
+    Stopped {
+        /// The seed.
+        seed: u64,
+    },
+    /// A seed's budget is trained; export and evaluation follow.
+    Trained {
+        /// The seed.
+        seed: u64,
+    },
+    /// A seed's policy is exported and evaluated through the runtime.
+    Exported {
+        /// The seed.
+        seed: u64,
+        /// The policy file.
+        path: &'a Path,
+        /// Its evaluation.
+        eval: &'a PolicyEval,
+    },
+    /// A seed's `eval.jsonl` has malformed lines (skipped in the plots).
+    MalformedLog {
+        /// The seed's folder.
+        dir: &'a Path,
+        /// Malformed lines.
+        lines: usize,
+    },
+    /// Every seed is done and the run folder is plotted.
+    Plotted {
+        /// The files written.
+        files: &'a [PathBuf],
+    },
+    /// Every seed is done but the plots failed (the run itself succeeded).
+    PlotFailed {
+        /// Why.
+        error: RunPlotError,
+    },
+}
+
+/// A training run ready to go: validated settings and the start states they describe.
+#[derive(Clone)]
+pub struct TrainPlan {
+    settings: TrainSettings,
+    starts: StartStates<DemoSource>,
+}
+
+impl TrainPlan {
+    /// Validates `settings` and builds the training start states (reading
+    /// `start.demonstrator_policy` when set).
+    pub fn new(settings: TrainSettings) -> Result<Self, TrainRunError> {
+        settings.validate()?;
+        let demo = match &settings.start.demonstrator_policy {
+            None => DemoSource::Scripted(Demonstrator::new(settings.task.task())),
+            Some(path) => {
+                let bytes =
+                    std::fs::read(path).map_err(|source| TrainRunError::DemonstratorRead {
+                        path: path.clone(),
+                        source,
+                    })?;
+                DemoSource::Policy(Box::new(
+                    PolicyDemonstration::from_file_bytes(&bytes).map_err(|source| {
+                        TrainRunError::DemonstratorPolicy {
+                            path: path.clone(),
+                            source,
+                        }
+                    })?,
+                ))
+            }
+        };
+        let starts =
+            StartStates::new(settings.start.scheme(), demo).map_err(TrainRunError::StartStates)?;
+        Ok(TrainPlan { settings, starts })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &TrainSettings {
+        &self.settings
+    }
+
+    /// Trains every seed into the run folder until done or `stop` is raised, holding each seed
+    /// folder's [`RunLock`] while it trains (so two jobs may train other seeds of one run, one per
+    /// core, but never the same seed); a seed with a checkpoint is continued only when `resume` (and only
+    /// with the checkpoint's settings). Returns whether every seed finished (false: stopped with
+    /// checkpoints saved). Plots the folder at the end ([`TrainEvent::Plotted`]).
+    pub fn train(
+        &self,
+        scene: &Scene,
+        resume: bool,
+        stop: &AtomicBool,
+        on_event: &mut dyn FnMut(TrainEvent<'_>),
+    ) -> Result<bool, TrainRunError> {
+        let s = &self.settings;
+        std::fs::create_dir_all(&s.out).map_err(|source| TrainRunError::Create {
+            path: s.out.clone(),
+            source,
+        })?;
+        write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
+        on_event(TrainEvent::Started { settings: s });
+        for &seed in &s.seeds {
+            if !train_seed(s, seed, scene, &self.starts, resume, stop, on_event, None)? {
+                return Ok(false);
+            }
+        }
+        plot_and_report(&s.out, on_event);
+        Ok(true)
+    }
+}
+
+/// [`TrainPlan::new`] then [`TrainPlan::train`].
+pub fn train_runs(
+    settings: TrainSettings,
+    scene: &Scene,
+    resume: bool,
+    stop: &AtomicBool,
+    on_event: &mut dyn FnMut(TrainEvent<'_>),
+) -> Result<bool, TrainRunError> {
+    TrainPlan::new(settings)?.train(scene, resume, stop, on_event)
+}
+
+/// Plots the run folder `out` and reports the files, or why the plots failed (the run itself
+/// succeeded either way).
+fn plot_and_report(out: &Path, on_event: &mut dyn FnMut(TrainEvent<'_>)) {
+    let plotted = plot_run(out, &mut |dir, lines| {
+        on_event(TrainEvent::MalformedLog { dir, lines });
+    });
+    match plotted {
+        Ok(files) => on_event(TrainEvent::Plotted { files: &files }),
+        Err(error) => on_event(TrainEvent::PlotFailed { error }),
+    }
+}
