@@ -49,6 +49,15 @@ cargo clippy --workspace --all-targets --all-features --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --all-features --locked
 
+# The benchmarks must keep running: each is built with the test profile (reusing what cargo test
+# built) and run once in a quick mode. criterion's `control_step` runs every benchmark once when
+# cargo test starts it; `learn_update` takes ROUNDS SECONDS. The timed runs are
+# `cargo bench -p dex-runtime --bench control_step` and `cargo bench -p dex-trainer --bench
+# learn_update` (docs/benchmarks.md).
+step "benchmarks, each once (quick mode)"
+cargo test -p dex-runtime --locked --bench control_step
+cargo test -p dex-trainer --all-features --locked --bench learn_update -- 1 0.05
+
 # After cargo test, so that the package's build (dev profile, target/debug) can reuse the
 # dependencies cargo test has built instead of building most of them first on its own.
 step "Python harness (scripts/setup-python.sh)"

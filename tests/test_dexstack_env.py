@@ -113,3 +113,5 @@ def test_markov_demonstrator_and_unquantised_policy():
     exact = dexstack.Policy(ROOT / "policies" / "grasp.dxpl", can_quantisation=False).act(obs)
     can = dexstack.Policy(ROOT / "policies" / "grasp.dxpl").act(obs)
     assert exact.shape == can.shape == (9,) and np.abs(exact - can).max() < 0.05
+    # ... but not equal: the CAN quantisation (of the observation and the action) did something.
+    assert np.any(exact != can), "CAN quantisation left every action component unchanged"

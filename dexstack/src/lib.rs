@@ -388,10 +388,10 @@ impl Policy {
 }
 
 /// Seed of episode `index` of an evaluation seeded with `seed`, as `trainer eval` and `hil-sim run`
-/// draw them.
+/// draw them (the one definition, `dex_env::seeds::episode_seed`).
 #[pyfunction]
 fn episode_seed(seed: u64, index: u64) -> u64 {
-    dex_env::evaluate::episode_seed(seed, index)
+    dex_env::seeds::episode_seed(seed, index)
 }
 
 /// The reward names (kebab-case), as `trainer train --reward` takes them.

@@ -17,6 +17,10 @@ use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM}
 
 use crate::{EnvConfig, EnvError, JacoEnv, Scene};
 
+// Each episode's start seed (shared by `trainer eval`, `hil-sim run` and dexstack) and the
+// held-out range, defined in `crate::seeds`, under their old paths here.
+pub use crate::seeds::{HELDOUT_SEED, episode_seed};
+
 /// Widest layer `trainer eval` accepts.
 pub const EVAL_WIDTH: usize = 1024;
 
@@ -102,15 +106,6 @@ pub fn wilson_interval(successes: u32, n: u32) -> (f64, f64) {
     let centre = (p + z * z / (2.0 * n)) / denom;
     let half = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / denom;
     ((centre - half).max(0.0), (centre + half).min(1.0))
-}
-
-/// Seed of episode `index` of an evaluation seeded with `seed` (SplitMix64 of both), shared by
-/// `trainer eval` and `hil-sim run` so both see the same start states.
-pub fn episode_seed(seed: u64, index: u64) -> u64 {
-    let mut z = seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 /// A controller's physical joint command turned into the environment's normalised action.
@@ -310,10 +305,6 @@ pub fn episode_outcomes(
     Ok(all.into_iter().map(|(_, o)| o).collect())
 }
 
-/// Start seed of the held-out observation episodes: far from the evaluation seeds (`trainer eval`
-/// uses 1,000,000) and never drawn by training, whose episode seeds come from the learner's RNG.
-pub const HELDOUT_SEED: u64 = 7_000_000;
-
 /// Every observation of `episodes` episodes driven by the policy `file` through the runtime (no CAN
 /// quantisation), episode `i` starting from [`episode_seed`]`(seed, i)`.
 pub fn heldout_observations(
@@ -429,12 +420,5 @@ mod tests {
         assert!(lo == 0.0 && (hi - 0.2775).abs() < 1e-3);
         let (lo, hi) = wilson_interval(10, 10);
         assert!((lo - 0.7225).abs() < 1e-3 && hi == 1.0);
-    }
-
-    #[test]
-    fn episode_seeds_differ_and_repeat() {
-        assert_eq!(episode_seed(1, 5), episode_seed(1, 5));
-        assert_ne!(episode_seed(1, 5), episode_seed(1, 6));
-        assert_ne!(episode_seed(1, 5), episode_seed(2, 5));
     }
 }

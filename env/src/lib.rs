@@ -14,7 +14,8 @@
 //! - [`StartStates`] makes training starts under a [`StartScheme`]: original, in-hand mixture, or
 //!   states along demonstrations ([`start_states`]).
 //! - [`evaluate`]: the success rate of a policy file run through the `dex-runtime` evaluator (the
-//!   code a controller runs) on these tasks.
+//!   code a controller runs) on these tasks; [`seeds`]: each episode's start seed and the named seed
+//!   ranges of the evaluations.
 //!
 //! Not here: rendering, the learner, and the real robot's CAN side.
 
@@ -29,6 +30,7 @@ pub mod observation;
 pub mod rewards;
 pub mod rng;
 pub mod scene;
+pub mod seeds;
 pub mod start_states;
 pub mod tasks;
 

@@ -43,10 +43,7 @@ pub const DEMO_TRAIN_EPISODE_STEPS: u32 = 50;
 /// drawn from a seed is the same under every scheme.
 const SCHEME_SALT: u64 = 0x5EED_57A7_E5C4_E3E5;
 
-/// Trajectory `i` of a demonstration pool starts from the original start of seed
-/// `POOL_SEED_BASE + i`: far above every seed range the project evaluates on (1,000,000 to
-/// 3,000,999) and the learner's episode seeds.
-pub const POOL_SEED_BASE: u64 = 1 << 40;
+pub use super::seeds::POOL_SEED_BASE;
 
 /// The largest demonstration pool (memory: ~2 kB per kept state, ~100 states per trajectory).
 pub const MAX_POOL: u32 = 100_000;

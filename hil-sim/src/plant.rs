@@ -210,15 +210,11 @@ fn is_fault_emcy(code: u16) -> bool {
     code != 0x0000 && code != dex_runtime::FaultCode::EnvelopeSustained.emcy_code()
 }
 
-/// Seed of episode `index` of a run seeded with `seed` (SplitMix64 of both): the same function as
-/// `dex_env::evaluate::episode_seed`, so `hil-sim run` and `trainer eval` see the same start
-/// states for the same `--seed`.
-pub fn episode_seed(seed: u64, index: u64) -> u64 {
-    let mut z = seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
+/// Seed of episode `index` of a run seeded with `seed`: the function `trainer eval` draws its
+/// starts with (`dex_env::evaluate::episode_seed` is the same item), so `hil-sim run` and
+/// `trainer eval` see the same start states for the same `--seed`. Also without the `mujoco`
+/// feature, for the synthetic plant.
+pub use dex_runtime::seeds::episode_seed;
 
 /// Outcome of one episode over the bus.
 #[derive(Debug, Clone, PartialEq)]

@@ -60,17 +60,18 @@ fn mujoco_lockstep_over_the_bus_equals_direct_evaluation() {
 /// 1,000,000 and checks every episode's return and success against `trainer eval`'s (CAN
 /// quantisation on); returns the successes.
 fn over_the_bus_like_trainer_eval(file: &[u8], task: Task, episodes: u64) -> usize {
-    use dex_env::evaluate::{EvalSettings, episode_outcomes, episode_seed};
+    use dex_env::evaluate::{EvalSettings, episode_outcomes};
+    use dex_env::seeds::{EVAL_SEED, episode_seed};
     use dex_env::{EnvConfig, Scene};
     let seeds: Vec<(u64, u32)> = (0..episodes)
-        .map(|i| (episode_seed(1_000_000, i), u32::MAX))
+        .map(|i| (episode_seed(EVAL_SEED, i), u32::MAX))
         .collect();
     let mut plant = MujocoPlant::new(task).unwrap();
     let (_, reports) = common::lockstep_over_the_bus(file, &mut plant, &seeds);
     let settings = EvalSettings {
         env: EnvConfig::new(task),
         episodes: episodes as u32,
-        seed: 1_000_000,
+        seed: EVAL_SEED,
         threads: 1,
         can_quantisation: true,
         // The controller node runs the safety envelope (its default).

@@ -10,6 +10,8 @@
 //!   activates it; roll-back to the previous policy, by request or after a faulty first evaluation.
 //! - [`can`] holds the frame type, AUTOSAR-E2E-profile-11-style protection and the cell's messages;
 //!   [`interface`] the observation and action layout they carry.
+//! - [`seeds`] holds [`seeds::episode_seed`], the start seed of each evaluation episode, shared by
+//!   every program that runs episodes.
 //!
 //! `#![no_std]`, no `alloc`, no heap: every buffer has a size fixed at compile time, and one call
 //! does bounded work (at most one forward pass). It does not drive a CAN peripheral: a board
@@ -33,6 +35,7 @@ pub mod jaco_kinematics;
 pub mod kinematics;
 pub mod mlp;
 pub mod observation;
+pub mod seeds;
 pub mod slots;
 #[cfg(feature = "std")]
 pub mod testkit;

@@ -27,6 +27,7 @@ use clap::Parser;
 use dex_policy::PolicyView;
 use dex_runtime::interface::ACTION_JOINTS;
 use dex_runtime::testkit::aligned_copy;
+use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
     EvalSettings, HELDOUT_SEED, PolicyEval, action_error, action_errors, episode_outcomes,
@@ -198,7 +199,7 @@ fn main() -> anyhow::Result<ExitCode> {
     let settings = EvalSettings {
         env,
         episodes: args.episodes,
-        seed: 1_000_000,
+        seed: EVAL_SEED,
         threads: args.threads,
         can_quantisation: true,
         envelope: false,
@@ -213,7 +214,7 @@ fn main() -> anyhow::Result<ExitCode> {
     // Start by start: the episodes whose outcome the int8 weights changed.
     let [both, f32_only, int8_only, neither] = paired(&oa, &ob);
     println!(
-        "closed loop, {} episodes from seed 1000000 (CAN quantisation on):",
+        "closed loop, {} episodes from seed {EVAL_SEED} (CAN quantisation on):",
         args.episodes
     );
     println!("  f32  {ea}");

@@ -12,8 +12,9 @@ use clap::Parser;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM, OBSERVATION_FIELDS};
+use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, Scene, Task};
-use dex_trainer::evaluate::{episode_seed, physical_to_env_action};
+use dex_trainer::evaluate::physical_to_env_action;
 
 #[derive(Parser)]
 struct Args {
@@ -46,7 +47,7 @@ fn main() -> anyhow::Result<()> {
     let (mut ended_in, mut left) = (0, Vec::new());
     let mut never = Vec::new();
     for i in 0..args.episodes {
-        let mut obs = env.reset(episode_seed(1_000_000, i))?;
+        let mut obs = env.reset(episode_seed(EVAL_SEED, i))?;
         let brick_start = [obs[brick], obs[brick + 1], obs[brick + 2]];
         let mut first_in = None;
         let mut step = 0u32;

@@ -12,8 +12,9 @@ use clap::Parser;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, Scene, Task};
-use dex_trainer::evaluate::{episode_seed, physical_to_env_action};
+use dex_trainer::evaluate::physical_to_env_action;
 
 #[derive(Parser)]
 struct Args {
@@ -48,7 +49,7 @@ fn main() -> anyhow::Result<()> {
     let mut groups = std::collections::BTreeMap::<String, u32>::new();
     let mut successes = 0;
     for i in 0..args.episodes {
-        let mut obs = env.reset(episode_seed(1_000_000, i))?;
+        let mut obs = env.reset(episode_seed(EVAL_SEED, i))?;
         let (mut ever_reach, mut ever_grasp, mut ever_stack) = (false, false, false);
         let mut max_z = 0.0f64;
         let mut wrist_travel = 0.0f32;

@@ -22,12 +22,13 @@ use crate::evaluate::episode_seed;
 use crate::learn::Rng;
 use crate::policy_demo::{DemoSource, PolicyDemonstration};
 
+// Start seed of recorded demonstrations (`env::seeds::DEMO_SEED`, apart from the other ranges
+// there), under its old path.
+pub use crate::env::seeds::DEMO_SEED;
+
 const MAGIC: &[u8; 8] = b"DXDEMO01";
 /// Version of the demo file format written by this build.
 pub const DEMO_FORMAT_VERSION: u32 = 1;
-/// Start seed of recorded demonstrations: apart from evaluation (1,000,000 / 3,000,000), checkpoint
-/// selection (2,000,000), held-out observations (7,000,000) and calibration (8,000,000).
-pub const DEMO_SEED: u64 = 5_000_000;
 const ROW: usize = OBS_DIM + ACT_DIM + ACT_DIM + 1 + OBS_DIM + 1;
 const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 

@@ -7,6 +7,10 @@ use dex_runtime::interface::{ACTION_JOINTS, CONTROL_PERIOD_US, OBSERVATION_FIELD
 use crate::env::Task;
 use crate::learn::nets::{Activation, Mlp};
 
+// Start seed of the int8 exporter's calibration episodes (`env::seeds::CALIBRATION_SEED`, apart
+// from evaluation and the held-out range), under its old path.
+pub use crate::env::seeds::CALIBRATION_SEED;
+
 /// Why an actor could not be exported.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -102,11 +106,6 @@ pub fn quantise_policy_file(
         Some(provenance),
     )?)
 }
-
-/// Start seed of the calibration episodes of the int8 exporter ([`equalise_policy_file`]): episode
-/// `i` starts from `episode_seed(CALIBRATION_SEED, i)`, a range used by neither training, `trainer
-/// eval` (1,000,000) nor the held-out error measurement (`evaluate::HELDOUT_SEED`, 7,000,000).
-pub const CALIBRATION_SEED: u64 = 8_000_000;
 
 /// Episodes whose observations calibrate the int8 exporter.
 pub const CALIBRATION_EPISODES: u32 = 20;

@@ -25,9 +25,9 @@ use crate::learn::EvalRecord;
 use crate::learn::bc::BcConfig;
 use crate::policy_demo::{DemoSource, PolicyDemonstration};
 
-/// Start seed of the per-round selection evaluation (checkpoint selection's seed, apart from
-/// `trainer eval`'s 1,000,000 and Table II's 3,000,000).
-pub const SELECTION_SEED: u64 = 2_000_000;
+// Start seed of the per-round selection evaluation (`env::seeds::SELECTION_SEED`, checkpoint
+// selection's seed), under its old path.
+pub use crate::env::seeds::SELECTION_SEED;
 
 /// Settings of an imitation run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

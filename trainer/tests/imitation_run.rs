@@ -5,6 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use dex_trainer::demos::{DemoSet, RecordMode};
+use dex_trainer::env::seeds::CI_SEED;
 use dex_trainer::env::{Scene, Task};
 use dex_trainer::imitation::{ImitationConfig, ImitationError, run_imitation};
 use dex_trainer::learn::bc::BcConfig;
@@ -173,7 +174,7 @@ fn the_reach_recipe_learns_reach() {
     let settings = dex_trainer::evaluate::EvalSettings {
         env: dex_trainer::env::EnvConfig::new(Task::Reach),
         episodes: 50,
-        seed: 4_000_000,
+        seed: CI_SEED,
         threads: 2,
         can_quantisation: true,
         envelope: false,

@@ -15,6 +15,7 @@
 use dex_policy::{LayerDtype, PolicyView};
 use dex_runtime::interface::ACTION_JOINTS;
 use dex_runtime::testkit::aligned_copy;
+use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{
     EvalSettings, action_error, episode_outcomes, evaluate_policy_file,
@@ -116,7 +117,7 @@ fn quantisation_aware_policy_succeeds_like_its_f32_file_start_by_start() {
     let settings = EvalSettings {
         env: EnvConfig::new(Task::Reach),
         episodes: 300,
-        seed: 1_000_000,
+        seed: EVAL_SEED,
         threads: 2,
         can_quantisation: true,
         envelope: false,
@@ -204,7 +205,7 @@ fn trainer_eval_runs_int8_files_deterministically() {
     let settings = EvalSettings {
         env: EnvConfig::new(Task::Reach),
         episodes: 4,
-        seed: 1_000_000,
+        seed: EVAL_SEED,
         threads: 2,
         can_quantisation: true,
         envelope: false,

@@ -10,11 +10,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use dex_trainer::env::seeds::CI_SEED;
 use dex_trainer::env::{EnvConfig, Scene, Task};
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
-
-/// Start seed of this check.
-const CI_SEED: u64 = 4_000_000;
 
 fn check(file: &str, task: Task, at_least: u32) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -84,7 +84,7 @@ fn export_and_evaluate(
     let settings = EvalSettings {
         env: s.reward.env_config(s.task.task()),
         episodes: s.final_eval_episodes,
-        seed: 1_000_000,
+        seed: crate::env::seeds::EVAL_SEED,
         threads: s.eval_threads,
         can_quantisation: true,
         envelope: false,

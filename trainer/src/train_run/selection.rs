@@ -3,10 +3,9 @@
 
 use super::*;
 
-/// Start seed of the checkpoint-selection evaluations: apart from the final evaluation's
-/// (1,000,000) and from `trainer eval`'s default, so the final figure of a selected policy is not
-/// biased by the selection.
-pub const SELECTION_SEED: u64 = 2_000_000;
+/// Start seed of the checkpoint-selection evaluations (`dex_env::seeds`): apart from the final
+/// evaluation's, so the final figure of a selected policy is not biased by the selection.
+pub use crate::env::seeds::SELECTION_SEED;
 
 /// The best checkpoint so far of a seed (`best.json` beside `best_actor.bin`).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

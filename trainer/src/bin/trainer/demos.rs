@@ -7,6 +7,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 
 use dex_trainer::demos::{DEMO_SEED, DemoSet, RecordMode, RecordSettings, record_with};
+use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::env::{Demonstrator, MarkovDemonstrator};
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::learn::bc::BcConfig;
@@ -247,7 +248,7 @@ pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
         let settings = EvalSettings {
             env: RewardArg::TaskDefault.env_config(task.task()),
             episodes: a.eval_episodes,
-            seed: 1_000_000,
+            seed: EVAL_SEED,
             threads: 2,
             can_quantisation: true,
             envelope: false,

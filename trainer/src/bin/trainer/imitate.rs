@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 use indicatif::ProgressBar;
 
+use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::imitation::{ImitationConfig, ImitationEvent, run_imitation};
 
@@ -182,14 +183,14 @@ pub fn imitate(a: &ImitateArgs) -> anyhow::Result<()> {
             let settings = EvalSettings {
                 env: dex_trainer::env::EnvConfig::new(cfg.task),
                 episodes: a.final_eval_episodes,
-                seed: 1_000_000,
+                seed: EVAL_SEED,
                 threads: cfg.eval_threads,
                 can_quantisation: true,
                 envelope: false,
             };
             let e = evaluate_policy_file(&bytes, &scene, &settings, &|| {})?;
             println!(
-                "{} on {:?}, {} random starts from seed 1000000: {}",
+                "{} on {:?}, {} random starts from seed {EVAL_SEED}: {}",
                 summary.policy.display(),
                 cfg.task,
                 a.final_eval_episodes,

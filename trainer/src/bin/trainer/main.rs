@@ -23,6 +23,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 
+use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::train_settings::{PresetArg, RewardArg, StartArg, TaskArg, TrainSettings};
 
 #[derive(Parser)]
@@ -229,7 +230,7 @@ struct EvalArgs {
     #[arg(long, default_value_t = 100)]
     episodes: u32,
     /// Seed of the start states.
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = EVAL_SEED)]
     seed: u64,
     /// Worker threads.
     #[arg(long, default_value_t = 2)]
@@ -323,7 +324,7 @@ fn export_int8(
     let eval_settings = EvalSettings {
         env,
         episodes: settings.final_eval_episodes,
-        seed: 1_000_000,
+        seed: EVAL_SEED,
         threads: settings.eval_threads,
         can_quantisation: true,
         envelope: false,

@@ -5,6 +5,7 @@
 use super::server::Server;
 use super::worker::WorkerRank;
 use super::{DistributedConfig, ExchangeStats, Transport};
+use crate::env::seeds::EVAL_SEED;
 use crate::learn::trainer::evaluate_actor;
 use crate::learn::{
     DdpgConfig, EvalConfig, Event, LearnError, PointMass, PointMassConfig, Progress, ReplayConfig,
@@ -83,7 +84,7 @@ pub fn run_point_mass<T: Transport>(
         let (net, params) = trainer.actor();
         let mut e = env(0);
         let (mean_return, success_rate) =
-            evaluate_actor(net, params, &mut e, eval_episodes, 100, 1_000_000)?;
+            evaluate_actor(net, params, &mut e, eval_episodes, 100, EVAL_SEED)?;
         let stats = server.stats();
         let progress = trainer.progress();
         Ok((
