@@ -43,6 +43,10 @@ bash scripts/setup-mujoco.sh
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
+step "docs/results.md against its records (python3 scripts/results.py --check)"
+# The headline figures live in one generated page; it must match docs/results/*.json.
+python3 scripts/results.py --check || { echo "error: docs/results.md is stale or a record is wrong (above)" >&2; exit 1; }
+
 step "cargo clippy -D warnings"
 cargo clippy --workspace --all-targets --all-features --locked -- -D warnings
 

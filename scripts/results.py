@@ -1,0 +1,244 @@
+#!/usr/bin/env python3
+"""Writes docs/results.md, the one page of headline results, from the evaluation records in
+docs/results/*.json (standard library only).
+
+    python3 scripts/results.py           # (re)write docs/results.md
+    python3 scripts/results.py --check   # exit 1 when docs/results.md differs from what the records give
+
+A record is one evaluation: what was evaluated (a policy file, with its sha256 when the file is in
+the repository), the command that produced the figure, successes, episodes, the 95% interval, the
+start seed, date, machine and compute. Both modes also check every record: required fields, the
+interval against the Wilson interval of successes / episodes, and the sha256 of a policy file in the
+repository (a replaced file needs a new evaluation and a new record; the old record stays, marked
+`history`). A figure that changes gets a
+new record; the old one stays with a `history` field saying why it is no longer current.
+"""
+
+import argparse
+import hashlib
+import json
+import math
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+RECORDS = ROOT / "docs" / "results"
+PAGE = ROOT / "docs" / "results.md"
+
+REQUIRED = {
+    "section": str,
+    "order": int,
+    "what": str,
+    "evaluated": dict,
+    "command": str,
+    "successes": int,
+    "episodes": int,
+    "interval_95": list,
+    "start_seed": int,
+    "evaluation": str,
+    "date": str,
+    "machine": str,
+    "compute": str,
+    "source": str,
+}
+
+# Sections of the page, in order: (key, title, text above the table).
+SECTIONS = [
+    (
+        "table2",
+        "Table II: the shipped policies over 1000 starts",
+        "The paper's Table II: success of the best Grasp, StackInHand and Stack policies over 1000 "
+        "random starts (seeds from 3,000,000, apart from training, selection and final evaluations). "
+        "Ours are the files in `policies/` (the imitation learner; how each was made: "
+        "[policies/README.md](../policies/README.md)). `bash experiments/table2.sh` runs the three "
+        "evaluations. The first row of each task is the latest evaluation on the current code; rows "
+        "marked *history* are earlier evaluations of the same file (same sha256).",
+    ),
+    (
+        "main-job",
+        "The main job: `bash scripts/main.sh`",
+        "README command one: learn Grasp with the imitation learner (`trainer imitate`, its defaults, "
+        "seed 0), export the policy file and evaluate it through the controller's runtime on 200 "
+        "unseen starts.",
+    ),
+    (
+        "ddpg-demos",
+        "DDPG from demonstrations on Grasp: `trainer train --task grasp`",
+        "The default of `trainer train` for the manipulation tasks (`--preset demos`: 200 recorded "
+        "demonstrations, 20,000 pre-training updates, 20,000 transitions; the ablation's `no-norm` "
+        "row, [experiments.md](experiments.md#ablation-at-grasp-scale-issue-12)). Its later "
+        "seed-0 figure over 100 starts is in the side by side below.",
+    ),
+    (
+        "side-by-side",
+        "Side by side with Stable-Baselines3",
+        "Seed 0 per learner, one thread each, the same dexstack environment, reward and starts "
+        "(protocol, curves and reading: [benchmarks.md](benchmarks.md#side-by-side-with-stable-baselines3-sessions-8-10-issue-14)). "
+        "Reach at the issue's 60,000 transitions (session 9), Grasp at 200,000 (session 10); "
+        "final success over 100 starts from 1,000,000. CPU times of sessions 9 and 10 come from "
+        "different CPUs.",
+    ),
+]
+
+
+def wilson(successes, episodes, z=1.959963984540054):
+    """95% Wilson score interval in percent, as `env/src/evaluate.rs` computes it."""
+    p = successes / episodes
+    d = 1 + z * z / episodes
+    c = (p + z * z / (2 * episodes)) / d
+    h = z * math.sqrt(p * (1 - p) / episodes + z * z / (4 * episodes * episodes)) / d
+    return 100 * (c - h), 100 * (c + h)
+
+
+def load():
+    """Reads and checks every record; returns (records, errors)."""
+    records, errors = [], []
+    files = sorted(RECORDS.glob("*.json"))
+    if not files:
+        errors.append(f"no records in {RECORDS.relative_to(ROOT)}/")
+    keys = {s[0] for s in SECTIONS}
+    for f in files:
+        name = f.relative_to(ROOT)
+        try:
+            r = json.loads(f.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:
+            errors.append(f"{name}: cannot read: {e}")
+            continue
+        bad = [k for k, t in REQUIRED.items() if not isinstance(r.get(k), t)]
+        if bad:
+            errors.append(f"{name}: missing or mistyped field(s): {', '.join(bad)}")
+            continue
+        if r["section"] not in keys:
+            errors.append(f"{name}: unknown section {r['section']!r} (one of {sorted(keys)})")
+        if not 0 <= r["successes"] <= r["episodes"] or r["episodes"] == 0:
+            errors.append(f"{name}: successes {r['successes']} of {r['episodes']} episodes")
+            continue
+        lo, hi = wilson(r["successes"], r["episodes"])
+        ci = r["interval_95"]
+        numbers = len(ci) == 2 and all(isinstance(x, (int, float)) for x in ci)
+        if not numbers or abs(ci[0] - lo) > 0.051 or abs(ci[1] - hi) > 0.051:
+            errors.append(
+                f"{name}: interval_95 {ci} is not the Wilson interval of "
+                f"{r['successes']}/{r['episodes']} ({lo:.1f}-{hi:.1f})"
+            )
+        policy = r["evaluated"].get("policy", "")
+        digest = r["evaluated"].get("sha256")
+        if digest is not None:
+            path = ROOT / policy
+            if not path.is_file():
+                if not r.get("history"):
+                    errors.append(f"{name}: {policy} has a sha256 but is not in the repository")
+            elif hashlib.sha256(path.read_bytes()).hexdigest() != digest and not r.get("history"):
+                # A history record may describe a file since replaced; a current one may not.
+                errors.append(
+                    f"{name}: {policy} is not the file this record evaluated (sha256 differs): "
+                    "evaluate the new file, add its record and mark this one `history`"
+                )
+        r["_file"] = str(name)
+        records.append(r)
+    return records, errors
+
+
+def cell(text):
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def render(records):
+    out = [
+        "# Results: the headline figures",
+        "",
+        "<!-- Generated by `python3 scripts/results.py` from docs/results/*.json: do not edit by hand.",
+        "     Change or add a record, then run the script; `scripts/test.sh` fails when this page is stale. -->",
+        "",
+        "Every figure below is one evaluation record in [`docs/results/`](results/) with the command "
+        "that produced it, its date and machine. Generated by `python3 scripts/results.py`; "
+        "`python3 scripts/results.py --check` (run by `scripts/test.sh`) fails when this page differs "
+        "from the records, when an interval is not the Wilson interval of its counts, or when a "
+        "policy file in the repository no longer matches the sha256 its record evaluated. Every "
+        "other measured figure, with its command: [benchmarks.md](benchmarks.md), "
+        "[experiments.md](experiments.md).",
+        "",
+        "Success counts the task's predicate at the last step of each episode; intervals are 95% "
+        "Wilson intervals.",
+    ]
+    for key, title, text in SECTIONS:
+        rows = sorted((r for r in records if r["section"] == key), key=lambda r: (r["order"], r["_file"]))
+        if not rows:
+            continue
+        paper = any("paper" in r for r in rows)
+        transitions = any("transitions" in r for r in rows)
+        head = ["what", "evaluated"]
+        if transitions:
+            head.append("transitions")
+        head += ["success (95% CI)", "starts"]
+        if paper:
+            head.append("paper")
+        head += ["command", "date, machine", "compute", "record"]
+        out += ["", f"## {title}", "", text, "", "| " + " | ".join(head) + " |",
+                "|" + "|".join("---" for _ in head) + "|"]
+        for r in rows:
+            what = r["what"]
+            if r.get("history"):
+                what = f"*history*: {what}"
+            ev = f"`{r['evaluated'].get('policy', '')}`"
+            if r["evaluated"].get("sha256"):
+                ev += f" (sha256 `{r['evaluated']['sha256'][:12]}`)"
+            rate = 100 * r["successes"] / r["episodes"]
+            lo, hi = r["interval_95"]
+            succ = f"{r['successes']}/{r['episodes']} = {rate:.1f}% ({lo:.1f}-{hi:.1f})"
+            if not r.get("history"):
+                succ = f"**{succ}**"
+            starts = f"{r['episodes']} from {r['start_seed']:,}"
+            when = r["date"]
+            if "session" in r:
+                when += f", session {r['session']}"
+            if "commit" in r:
+                when += f", commit {r['commit']}"
+            when += f"; {r['machine']}"
+            row = [what, ev]
+            if transitions:
+                row.append(f"{r['transitions']:,}" if "transitions" in r else "")
+            row += [succ, starts]
+            if paper:
+                row.append(r.get("paper", ""))
+            row += [f"`{r['command']}`", when, r["compute"], f"[{Path(r['_file']).name}](results/{Path(r['_file']).name})"]
+            out.append("| " + " | ".join(cell(c) for c in row) + " |")
+        notes = [r for r in rows if r.get("history") or r.get("note")]
+        if notes:
+            out.append("")
+            for r in notes:
+                parts = [p for p in (r.get("note"), r.get("history") and f"history: {r['history']}") if p]
+                out.append(f"- {r['what']} ({r['date']}): {'; '.join(parts)}.")
+        out.append("")
+        out.append("How each figure was measured: " + "; ".join(
+            sorted({r["evaluation"] for r in rows})) + ". Where it was first reported: " + "; ".join(
+            sorted({r["source"] for r in rows})) + ".")
+    return "\n".join(out) + "\n"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true",
+                    help="do not write; exit 1 when docs/results.md is stale or a record is wrong")
+    args = ap.parse_args()
+    records, errors = load()
+    if errors:
+        for e in errors:
+            print(f"error: {e}", file=sys.stderr)
+        sys.exit(1)
+    page = render(records)
+    if args.check:
+        current = PAGE.read_text(encoding="utf-8") if PAGE.exists() else None
+        if current != page:
+            what = "is missing" if current is None else "differs from what docs/results/*.json give"
+            print(f"error: docs/results.md {what}: run `python3 scripts/results.py` and commit the page "
+                  "(never edit it by hand)", file=sys.stderr)
+            sys.exit(1)
+        print(f"docs/results.md is up to date with {len(records)} records")
+        return
+    PAGE.write_text(page, encoding="utf-8")
+    print(f"wrote docs/results.md from {len(records)} records")
+
+
+if __name__ == "__main__":
+    main()
