@@ -3,9 +3,9 @@
 
 Same work per update: target actor + target critic forward, critic forward/backward + Adam, actor
 forward, critic forward/backward into the actor, actor backward + Adam, Polyak target update.
-Actor 44-256-256-9 (ReLU, tanh), critic 53-256-256-1 (ReLU, linear), f32, one thread.
+Actor 44-H-H-9 (ReLU, tanh), critic 53-H-H-1 (ReLU, linear), H = 256 unless given, f32, one thread.
 
-Usage: python scripts/bench-torch.py [ROUNDS] [SECONDS]   (best round per batch size is printed)
+Usage: python scripts/bench-torch.py [ROUNDS] [SECONDS] [HIDDEN]   (best round per batch size is printed)
 """
 import sys
 import time
@@ -16,8 +16,12 @@ from torch import nn
 OBS, ACT = 44, 9
 
 
+HIDDEN = int(sys.argv[3]) if len(sys.argv) > 3 else 256
+
+
 def mlp(inp, out, out_act):
-    layers = [nn.Linear(inp, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, out)]
+    h = HIDDEN
+    layers = [nn.Linear(inp, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, out)]
     if out_act:
         layers.append(nn.Tanh())
     return nn.Sequential(*layers)
@@ -69,7 +73,7 @@ def main():
             u = rate(b, seconds)
             best[b] = max(best[b], u)
             print(f"round {i} torch batch {b}: {u:.0f}/s", file=sys.stderr)
-    print(f"torch {torch.__version__} 1 thread")
+    print(f"torch {torch.__version__} 1 thread, hidden layers {HIDDEN}-{HIDDEN}")
     for b, u in best.items():
         print(f"| PyTorch | {b} | {u:.0f} |")
 

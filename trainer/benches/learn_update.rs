@@ -1,6 +1,8 @@
 //! Updates per second of one DDPG update for the paper's network sizes, both GEMM engines side by side.
 //!
-//! `cargo bench -p dex-trainer --bench learn_update [-- ROUNDS SECONDS]` (defaults 5 rounds of 1 s).
+//! `cargo bench -p dex-trainer --bench learn_update [-- ROUNDS SECONDS [HIDDEN]]` (defaults 5 rounds
+//! of 1 s, hidden layers 256-256; `HIDDEN` = 128 gives the 128-128 networks of the paper-protocol
+//! runs in experiments/paper/).
 //! Rounds interleave engines and batch sizes; the best round of each is reported (other load on the
 //! machine only ever slows a round down). Two figures per configuration:
 //! - `kernel`: the bare update (target actor + target critic forward, critic forward/backward + Adam,
@@ -54,8 +56,14 @@ impl Env for Free {
     }
 }
 
+/// Hidden width of both networks (two layers), from the command line.
+static HIDDEN: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+
 fn ddpg(engine: Engine, batch: usize) -> DdpgConfig {
+    let h = *HIDDEN.get().unwrap_or(&256);
     DdpgConfig {
+        actor_hidden: vec![h, h],
+        critic_hidden: vec![h, h],
         batch_size: batch,
         engine,
         target: TargetUpdate::Polyak { tau: 0.005 },
@@ -151,6 +159,9 @@ fn main() {
         .collect();
     let rounds: usize = args.first().and_then(|a| a.parse().ok()).unwrap_or(5);
     let seconds: f64 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(1.0);
+    let hidden: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(256);
+    let _ = HIDDEN.set(hidden);
+    println!("hidden layers {hidden}-{hidden}");
     let engines = [Engine::Gemm, Engine::MatrixMultiply];
     let batches = [64usize, 256];
     let mut best = vec![[0.0f64; 2]; engines.len() * batches.len()];

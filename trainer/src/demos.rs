@@ -381,7 +381,8 @@ impl DemoSet {
         buf
     }
 
-    /// Writes the file atomically (`PATH.tmp`, then renamed).
+    /// Writes the file atomically and durably ([`crate::atomic_write::write_atomic`]), creating
+    /// its folder if needed.
     pub fn save(&self, path: &Path) -> Result<(), DemoError> {
         let io = |source| DemoError::Io {
             path: path.to_owned(),
@@ -390,9 +391,7 @@ impl DemoSet {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        let tmp = path.with_extension("tmp");
-        std::fs::write(&tmp, self.to_bytes()).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(io)
+        crate::atomic_write::write_atomic(path, &self.to_bytes()).map_err(io)
     }
 
     /// Parses a file's bytes (`path` only names it in errors); checks magic, checksum, version,

@@ -334,7 +334,7 @@ pub struct ObsNormalisation<'a> {
     pub inv_std: &'a [f32],
 }
 
-fn task_code(task: Task) -> dex_policy::Task {
+pub(crate) fn task_code(task: Task) -> dex_policy::Task {
     match task {
         Task::Reach => dex_policy::Task::Reach,
         Task::Grasp => dex_policy::Task::Grasp,

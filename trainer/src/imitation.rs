@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use crate::atomic_write::write_atomic;
 use crate::cloning::{CloneError, clone_to_policy_file};
 use crate::demos::{DEMO_SEED, DemoError, DemoSet, RecordMode, RecordSettings, record_with};
 use crate::env::{MarkovDemonstrator, Scene, Task};
@@ -272,12 +273,6 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ImitationError + '_ {
     }
 }
 
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImitationError> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).map_err(io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io(path))
-}
-
 /// Runs (or resumes) an imitation run in `dir`.
 pub fn run_imitation(
     scene: &Scene,
@@ -298,7 +293,7 @@ pub fn run_imitation(
             return Err(ImitationError::SettingsChanged(dir.to_owned()));
         }
         Ok(_) => {}
-        Err(_) => write_atomic(&settings_path, settings.as_bytes())?,
+        Err(_) => write_atomic(&settings_path, settings.as_bytes()).map_err(io(&settings_path))?,
     }
     let expert = |task| DemoSource::Markov(MarkovDemonstrator::new(task));
     let bc = BcConfig {
@@ -360,7 +355,7 @@ pub fn run_imitation(
                 let (_, file) = clone_to_policy_file(&sets, cfg.task, &bc, &mut |step, loss| {
                     on_event(ImitationEvent::CloneStep(step, loss));
                 })?;
-                write_atomic(&policy_path, &file)?;
+                write_atomic(&policy_path, &file).map_err(io(&policy_path))?;
                 let (mean_return, success_rate) = if cfg.select_episodes > 0 {
                     let e = evaluate_policy_file(&file, scene, &eval, &|| {})?;
                     (e.mean_return, e.success_rate())
@@ -390,7 +385,7 @@ pub fn run_imitation(
                     log.push_str(&r.to_json_line());
                     log.push('\n');
                 }
-                write_atomic(&log_path, log.as_bytes())?;
+                write_atomic(&log_path, log.as_bytes()).map_err(io(&log_path))?;
                 file
             };
         bc_steps += bc.steps;
@@ -412,7 +407,7 @@ pub fn run_imitation(
     let best_path = dir.join(format!("policy-{best}.dxpl"));
     let out = dir.join("policy.dxpl");
     let bytes = std::fs::read(&best_path).map_err(io(&best_path))?;
-    write_atomic(&out, &bytes)?;
+    write_atomic(&out, &bytes).map_err(io(&out))?;
     Ok(ImitationSummary {
         records,
         best_round: best,

@@ -13,6 +13,9 @@
 //!   cloning of them into a policy file; [`imitation`]: cloning plus DAgger rounds with the Markov
 //!   demonstrator as the oracle, the learner that solves Grasp and StackInHand.
 //! - [`plot`]: learning curves like the paper's (mean and min-max band over seeds).
+//! - [`atomic_write`]: the one atomic, durable file write (temporary file, fsync, rename, fsync of
+//!   the folder) behind every file that must survive a crash: checkpoints, demo and policy files,
+//!   run settings and logs.
 //! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
 //! - [`train_settings`]: the settings of a training run (defaults < TOML file < flags), validated
 //!   once, and kept in each run folder as `settings.toml`.
@@ -23,6 +26,7 @@
 //! The `trainer` binary is a front end: it turns flags into [`train_settings::TrainSettings`],
 //! calls these, and prints progress (train, eval, plot, export, figure, demos, clone, imitate).
 
+pub mod atomic_write;
 pub mod cloning;
 pub mod demos;
 /// The environment (crate `dex-env`, re-exported so `dex_trainer::env::*` keeps its paths).
@@ -35,6 +39,7 @@ pub mod jaco;
 pub mod learn;
 pub mod plot;
 pub mod policy_demo;
+pub mod policy_import;
 pub mod run_lock;
 pub mod run_plots;
 pub mod train_run;

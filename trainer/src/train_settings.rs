@@ -83,6 +83,12 @@ pub enum SettingsError {
     /// `demo_noise` is outside [0, 1].
     #[error("demo_noise must be in [0, 1]")]
     DemoNoise,
+    /// `init_policy` with observation normalisation on.
+    #[error(
+        "init_policy needs run.obs_norm.enabled = false: the file's normalisation is folded into \
+         the actor's first layer"
+    )]
+    InitPolicyNorm,
 }
 
 /// A key of a settings file that no setting has, by its dotted path (`run.updates_per_step`).
@@ -274,6 +280,10 @@ pub struct TrainSettings {
     pub record_demos: u32,
     /// Noise on the recorded demonstrations' executed arm actions.
     pub demo_noise: f32,
+    /// An exported f32 policy file of the task (e.g. `trainer imitate`'s clone) whose network
+    /// starts the actor (`--init-policy`; `run.ddpg.actor_hidden` must be its hidden sizes and
+    /// observation normalisation off: the file's is folded into the first layer).
+    pub init_policy: Option<PathBuf>,
     /// The learner.
     pub run: RunConfig,
 }
@@ -361,6 +371,7 @@ impl Default for TrainSettings {
             demo_files: Vec::new(),
             record_demos: 0,
             demo_noise: 0.1,
+            init_policy: None,
             run,
         }
     }
@@ -472,6 +483,9 @@ impl TrainSettings {
         }
         if !(self.demo_noise >= 0.0 && self.demo_noise <= 1.0) {
             return Err(SettingsError::DemoNoise);
+        }
+        if self.init_policy.is_some() && self.run.obs_norm.enabled {
+            return Err(SettingsError::InitPolicyNorm);
         }
         Ok(())
     }

@@ -217,6 +217,61 @@ fn pretraining_on_demonstrations_starts_from_the_cloned_policy_with_frozen_scali
 }
 
 #[test]
+fn critic_warm_up_keeps_the_starting_actor_until_the_critic_has_rated_it() {
+    let stop = AtomicBool::new(false);
+    // A starting actor that already solves the task: pre-trained on demonstrations.
+    let mut cfg = small_config(6);
+    cfg.demos.fraction = 0.25;
+    cfg.demos.bc_weight = 1.0;
+    cfg.demos.pretrain_updates = 2_000;
+    let mut pre = Trainer::new(cfg, 6, 2).expect("trainer");
+    pre.set_demonstrations(demonstrations(40)).expect("demos");
+    pre.run(env, 1, &stop, &mut quiet).expect("run");
+    let start = pre.actor().1.to_vec();
+
+    let mut warm = small_config(7);
+    warm.critic_warmup_updates = 300;
+    let mut t = Trainer::new(warm.clone(), 6, 2).expect("trainer");
+    t.set_initial_actor(start.clone()).expect("fresh run");
+    let (critic0, target0) = (t.critic().1.to_vec(), t.target_critic().to_vec());
+    // learning_starts is 200 and R = 1: a run to 260 transitions makes fewer than 300 updates.
+    let s = t.run(env, 260, &stop, &mut quiet).expect("run");
+    let u = t.progress().updates;
+    assert!(u > 0 && u <= 300, "{u} updates");
+    assert_eq!(
+        t.actor().1,
+        &start[..],
+        "the actor moved during the warm-up"
+    );
+    assert_ne!(t.critic().1, &critic0[..], "the critic did not learn");
+    assert_ne!(
+        t.target_critic(),
+        &target0[..],
+        "the critic's target did not follow"
+    );
+    // The evaluations in the warm-up are the starting actor's.
+    assert!(
+        s.records.iter().all(|r| r.success_rate >= 0.9),
+        "{:?}",
+        s.records
+    );
+    t.run(env, 800, &stop, &mut quiet).expect("run");
+    assert!(t.progress().updates > 300);
+    assert_ne!(
+        t.actor().1,
+        &start[..],
+        "the actor never moved after the warm-up"
+    );
+    // Only a fresh run takes an initial actor.
+    assert!(t.set_initial_actor(start.clone()).is_err());
+    // Without the warm-up the actor moves from the first update.
+    let mut cold = Trainer::new(small_config(7), 6, 2).expect("trainer");
+    cold.set_initial_actor(start.clone()).expect("fresh run");
+    cold.run(env, 260, &stop, &mut quiet).expect("run");
+    assert_ne!(cold.actor().1, &start[..]);
+}
+
+#[test]
 fn every_component_together_learns_and_resumes_bit_identically() {
     let stop = AtomicBool::new(false);
     let mut t = Trainer::new(all_components(4), 6, 2).expect("trainer");

@@ -6,15 +6,128 @@
 //! env-tool record --task stack [--seed 0] [--out runs/demo]   # for scripts/render-demo.py
 //! env-tool trace --task reach [--reward NAME] [--seed 0] [--steps N] [--noise 0.3] --out FILE.json
 //! ```
+//!
+//! Flags take the defaults shown; `env-tool --help` and `env-tool COMMAND --help` describe them. An
+//! unknown command or flag, or a bad value, exits 2 with a usage message.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+use clap::{Parser, Subcommand};
+
 use dex_trainer::env::{Demonstrator, EnvConfig, JacoEnv, Scene, Task};
 
+#[derive(Parser)]
+#[command(
+    name = "env-tool",
+    about = "Run the scripted demonstrators and measure the Jaco environment's speed"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scripted demonstrator over episodes and report its success rate.
+    Demo {
+        /// Task: grasp, stack-in-hand, stack or reach.
+        #[arg(long, default_value = "grasp")]
+        task: Task,
+        /// Episodes, from seeds SEED, SEED+1, ...
+        #[arg(long, default_value_t = 200)]
+        episodes: u64,
+        /// First episode seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// One line per control step, and one per episode.
+        #[arg(long)]
+        verbose: bool,
+        /// The Markov demonstrator (its phase at the end of failed episodes) instead.
+        #[arg(long)]
+        markov: bool,
+    },
+    /// Environment speed: control steps per second over threads (Grasp, resets every episode).
+    Bench {
+        /// Threads, each with its own environment.
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        /// Control steps per thread.
+        #[arg(long, default_value_t = 3000)]
+        steps: u64,
+        /// Actions: uniform random, or the scripted demonstrator's.
+        #[arg(long, default_value = "random", value_parser = ["random", "demo"])]
+        mode: String,
+    },
+    /// scene.xml + qpos.csv of a demonstrator episode (for scripts/render-demo.py).
+    Record {
+        /// Task: grasp, stack-in-hand, stack or reach.
+        #[arg(long, default_value = "stack")]
+        task: Task,
+        /// Episode seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Output folder.
+        #[arg(long, default_value = "runs/demo")]
+        out: PathBuf,
+    },
+    /// One noisy demonstrator episode as a JSON trace (for tests/test_dexstack_trace.py).
+    Trace {
+        /// Task: grasp, stack-in-hand, stack or reach.
+        #[arg(long, default_value = "reach")]
+        task: Task,
+        /// Reward (a `dex_env::Reward` name); the task's default when not given.
+        #[arg(long)]
+        reward: Option<String>,
+        /// Episode seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Control steps; the episode's length when not given.
+        #[arg(long)]
+        steps: Option<u32>,
+        /// Amplitude of the uniform noise added to the demonstrator's actions.
+        #[arg(long, default_value_t = 0.3)]
+        noise: f64,
+        /// Output JSON file.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    match run(&args) {
+    // Unknown commands and flags, and bad values, exit 2 with a usage message (clap).
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Demo {
+            task,
+            episodes,
+            seed,
+            verbose,
+            markov,
+        } => {
+            if markov {
+                markov_demo(task, episodes, seed)
+            } else {
+                demo(task, episodes, seed, verbose)
+            }
+        }
+        Command::Bench {
+            threads,
+            steps,
+            mode,
+        } => bench(threads, steps, &mode),
+        Command::Record { task, seed, out } => record(task, seed, &out),
+        Command::Trace {
+            task,
+            reward,
+            seed,
+            steps,
+            noise,
+            out,
+        } => trace(task, reward.as_deref(), seed, steps, noise, &out),
+    };
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("env-tool: {e}");
@@ -25,50 +138,8 @@ fn main() -> ExitCode {
 
 type BoxError = Box<dyn std::error::Error + Send + Sync>;
 
-fn flag<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<T, BoxError>
-where
-    T::Err: std::fmt::Display,
-{
-    match args.iter().position(|a| a == name) {
-        None => Ok(default),
-        Some(i) => {
-            let v = args
-                .get(i + 1)
-                .ok_or_else(|| format!("{name} needs a value"))?;
-            v.parse().map_err(|e| format!("{name} {v}: {e}").into())
-        }
-    }
-}
-
-fn run(args: &[String]) -> Result<(), BoxError> {
-    let cmd = args.first().map(String::as_str).unwrap_or("help");
-    match cmd {
-        "demo" => demo(args),
-        "bench" => bench(args),
-        "record" => record(args),
-        "trace" => trace(args),
-        _ => {
-            println!("usage: env-tool demo --task TASK [--episodes N] [--seed S] [--verbose]");
-            println!("       env-tool bench [--threads N] [--steps N] [--mode random|demo]");
-            println!(
-                "       env-tool record --task TASK [--seed S] [--out DIR]   (scene.xml + qpos.csv of a demo episode)"
-            );
-            println!(
-                "       env-tool trace --task TASK [--reward NAME] [--seed S] [--steps N] [--noise X] --out FILE   (JSON trace for the Python package's test)"
-            );
-            Ok(())
-        }
-    }
-}
-
-fn demo(args: &[String]) -> Result<(), BoxError> {
-    let task: Task = flag(args, "--task", Task::Grasp)?;
-    let episodes: u64 = flag(args, "--episodes", 200)?;
-    let seed: u64 = flag(args, "--seed", 0)?;
-    let verbose = args.iter().any(|a| a == "--verbose");
-    if args.iter().any(|a| a == "--markov") {
-        return markov_demo(task, episodes, seed);
-    }
+/// `demo`: success of the scripted demonstrator, and the environment's speed with it.
+fn demo(task: Task, episodes: u64, seed: u64, verbose: bool) -> Result<(), BoxError> {
     let scene = Scene::load()?;
     let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
     let start = Instant::now();
@@ -151,12 +222,8 @@ fn markov_demo(task: Task, episodes: u64, seed: u64) -> Result<(), BoxError> {
 }
 
 /// Writes the composed scene as one MJCF file and the demonstrator's qpos at every control step.
-fn record(args: &[String]) -> Result<(), BoxError> {
-    use std::io::Write;
-    let task: Task = flag(args, "--task", Task::Stack)?;
-    let seed: u64 = flag(args, "--seed", 0)?;
-    let out: String = flag(args, "--out", "runs/demo".to_owned())?;
-    let dir = std::path::Path::new(&out);
+fn record(task: Task, seed: u64, dir: &std::path::Path) -> Result<(), BoxError> {
+    use std::fmt::Write;
     std::fs::create_dir_all(dir)?;
     let mut spec = dex_trainer::env::scene::compose_spec(&dex_trainer::env::AssetPaths::locate())?;
     spec.compile()?;
@@ -165,15 +232,15 @@ fn record(args: &[String]) -> Result<(), BoxError> {
     let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
     env.reset(seed)?;
     let mut demo = Demonstrator::new(task);
-    let mut file = std::io::BufWriter::new(std::fs::File::create(dir.join("qpos.csv"))?);
-    let mut write_row = |env: &JacoEnv| -> std::io::Result<()> {
+    let mut csv = String::new();
+    let mut write_row = |env: &JacoEnv| -> std::fmt::Result {
         let row: Vec<String> = env
             .data()
             .qpos()
             .iter()
             .map(|q| format!("{q:.6}"))
             .collect();
-        writeln!(file, "{}", row.join(","))
+        writeln!(csv, "{}", row.join(","))
     };
     write_row(&env)?;
     let mut success = false;
@@ -182,6 +249,7 @@ fn record(args: &[String]) -> Result<(), BoxError> {
         write_row(&env)?;
         success = out.success;
     }
+    dex_trainer::atomic_write::write_atomic(&dir.join("qpos.csv"), csv.as_bytes())?;
     println!(
         "recorded {task:?} seed {seed} (success {success}) into {}",
         dir.display()
@@ -189,11 +257,9 @@ fn record(args: &[String]) -> Result<(), BoxError> {
     Ok(())
 }
 
-fn bench(args: &[String]) -> Result<(), BoxError> {
-    let threads: usize = flag(args, "--threads", 1)?;
-    let steps: u64 = flag(args, "--steps", 3000)?;
-    let mode: String = flag(args, "--mode", "random".to_owned())?;
-    let demo_mode = match mode.as_str() {
+/// `bench`: control steps per second of `threads` environments stepping at once.
+fn bench(threads: usize, steps: u64, mode: &str) -> Result<(), BoxError> {
+    let demo_mode = match mode {
         "random" => false,
         "demo" => true,
         other => return Err(format!("unknown --mode {other}").into()),
@@ -269,23 +335,22 @@ fn bench_worker(
 /// generator, so some components leave [-1, 1] and are clipped), and the observation, reward,
 /// success and predicates after it. Floats are written as their IEEE-754 bits (`u32`), so the
 /// comparison on the Python side is bit for bit.
-fn trace(args: &[String]) -> Result<(), BoxError> {
-    let task: Task = flag(args, "--task", Task::Reach)?;
-    let reward_name: String = flag(args, "--reward", String::new())?;
-    let seed: u64 = flag(args, "--seed", 0)?;
-    let noise: f64 = flag(args, "--noise", 0.3)?;
-    let out: String = flag(args, "--out", String::new())?;
-    if out.is_empty() {
-        return Err("trace needs --out FILE".into());
-    }
+fn trace(
+    task: Task,
+    reward_name: Option<&str>,
+    seed: u64,
+    steps: Option<u32>,
+    noise: f64,
+    out: &std::path::Path,
+) -> Result<(), BoxError> {
     let mut config = EnvConfig::new(task);
-    if !reward_name.is_empty() {
+    if let Some(reward_name) = reward_name.filter(|r| !r.is_empty()) {
         let reward: dex_trainer::env::Reward =
-            serde_json::from_value(serde_json::Value::String(reward_name.clone()))
+            serde_json::from_value(serde_json::Value::String(reward_name.to_owned()))
                 .map_err(|e| format!("--reward {reward_name}: {e}"))?;
         config = config.with_reward(reward);
     }
-    let steps: u32 = flag(args, "--steps", config.episode_steps)?;
+    let steps = steps.unwrap_or(config.episode_steps);
     let scene = Scene::load()?;
     let mut env = JacoEnv::new(&scene, config);
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
@@ -317,7 +382,10 @@ fn trace(args: &[String]) -> Result<(), BoxError> {
         "reset": bits(&first),
         "steps": records,
     });
-    std::fs::write(&out, serde_json::to_string(&doc)?)?;
-    println!("wrote {steps} steps of {task:?} from seed {seed} to {out}");
+    dex_trainer::atomic_write::write_atomic(out, serde_json::to_string(&doc)?.as_bytes())?;
+    println!(
+        "wrote {steps} steps of {task:?} from seed {seed} to {}",
+        out.display()
+    );
     Ok(())
 }

@@ -1,8 +1,9 @@
 //! Checkpoints of a whole [`Trainer`]: parameters, targets, Adam moments, generators, counters and
 //! replay buffers, so a resumed one-worker run continues bit-identically.
 //!
-//! Writing is atomic: the file is written to `PATH.tmp`, flushed to disk, then renamed over `PATH`, so a
-//! crash leaves either the previous checkpoint or the new one, never a torn file.
+//! Writing is atomic ([`crate::atomic_write::write_atomic`]): the file is written to a temporary file
+//! next to `PATH`, flushed to disk, renamed over `PATH`, and the folder flushed, so a crash or a power
+//! cut leaves either the previous checkpoint or the new one, never a torn file.
 //!
 //! Format (little-endian): magic `DEXLRN02`; the [`RunConfig`] as JSON (u64 length + bytes); observation
 //! and action sizes; counters; shared parameters, targets, second moments and the update count; the
@@ -20,7 +21,6 @@ use super::norm::ObsStats;
 use super::replay::Replay;
 use super::rng::Rng;
 use super::trainer::{Counters, RunConfig, SharedState, Trainer, WorkerState};
-use std::io::Write;
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"DEXLRN02";
@@ -329,25 +329,10 @@ impl Trainer {
         Ok(t)
     }
 
-    /// Writes a checkpoint atomically (`PATH.tmp`, fsync, rename).
+    /// Writes a checkpoint atomically and durably ([`crate::atomic_write::write_atomic`]: a
+    /// temporary file, fsync, rename, fsync of the folder).
     pub fn save(&self, path: &Path) -> Result<(), LearnError> {
-        let bytes = self.to_checkpoint_bytes();
-        let mut tmp = path.as_os_str().to_owned();
-        tmp.push(".tmp");
-        let tmp = std::path::PathBuf::from(tmp);
-        {
-            let mut f = std::fs::File::create(&tmp).map_err(io_err(&tmp))?;
-            f.write_all(&bytes).map_err(io_err(&tmp))?;
-            f.sync_all().map_err(io_err(&tmp))?;
-        }
-        std::fs::rename(&tmp, path).map_err(io_err(path))?;
-        if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty())
-            && let Ok(d) = std::fs::File::open(dir)
-        {
-            // Best effort: makes the rename itself durable on file systems that need it.
-            let _ = d.sync_all();
-        }
-        Ok(())
+        crate::atomic_write::write_atomic(path, &self.to_checkpoint_bytes()).map_err(io_err(path))
     }
 
     /// Reads a checkpoint written by [`Trainer::save`].

@@ -72,14 +72,13 @@ impl TrainPlan {
             path: s.out.clone(),
             source,
         })?;
-        write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
+        write_file(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
         on_event(TrainEvent::Started { settings: s });
         let seed = s.seeds[0];
         let done = train_seed(
-            s,
+            self,
             seed,
             scene,
-            &self.starts,
             resume,
             stop,
             on_event,
@@ -87,7 +86,7 @@ impl TrainPlan {
         );
         let stats = server.stats();
         let dir = s.out.join(format!("seed-{seed}"));
-        write_atomic(
+        write_file(
             &dir.join("distributed.json"),
             serde_json::to_string(&stats)?.as_bytes(),
         )?;

@@ -31,7 +31,6 @@ use crate::run_lock::{RunLock, RunLockError};
 use crate::run_plots::{RunPlotError, plot_run};
 use crate::train_settings::{SettingsError, TrainSettings};
 
-mod atomic_write;
 mod demonstrations;
 mod distributed;
 mod run_log;
@@ -39,7 +38,6 @@ mod seed_export;
 mod seed_run;
 mod selection;
 
-pub use atomic_write::write_atomic;
 use demonstrations::demonstrations;
 pub use distributed::ParameterServer;
 use run_log::truncate_log;
@@ -70,6 +68,22 @@ pub enum TrainRunError {
         path: PathBuf,
         /// The cause.
         source: EvalError,
+    },
+    /// `init_policy` could not be read.
+    #[error("cannot read the initial policy {}", path.display())]
+    InitRead {
+        /// The policy file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// `init_policy` cannot start the run's actor.
+    #[error("initial policy {}", path.display())]
+    InitPolicy {
+        /// The policy file.
+        path: PathBuf,
+        /// The cause.
+        source: crate::policy_import::ImportError,
     },
     /// The start states could not be built.
     #[error("invalid [start] settings")]
@@ -196,6 +210,15 @@ fn io_at(path: &Path) -> impl FnOnce(std::io::Error) -> TrainRunError + '_ {
     }
 }
 
+/// Writes a run-folder file with [`crate::atomic_write::write_atomic`] (atomic and durable);
+/// a failure is a [`TrainRunError::Write`] of `path`.
+fn write_file(path: &Path, bytes: &[u8]) -> Result<(), TrainRunError> {
+    crate::atomic_write::write_atomic(path, bytes).map_err(|source| TrainRunError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// What a training run tells its front end, in order, on the calling thread.
 #[derive(Debug)]
 #[non_exhaustive]
@@ -296,6 +319,8 @@ pub enum TrainEvent<'a> {
 pub struct TrainPlan {
     settings: TrainSettings,
     starts: StartStates<DemoSource>,
+    /// The actor's starting parameters read from `init_policy`, when set.
+    init_actor: Option<Vec<f32>>,
 }
 
 impl TrainPlan {
@@ -323,7 +348,31 @@ impl TrainPlan {
         };
         let starts =
             StartStates::new(settings.start.scheme(), demo).map_err(TrainRunError::StartStates)?;
-        Ok(TrainPlan { settings, starts })
+        let init_actor = match &settings.init_policy {
+            None => None,
+            Some(path) => {
+                let bytes = std::fs::read(path).map_err(|source| TrainRunError::InitRead {
+                    path: path.clone(),
+                    source,
+                })?;
+                let nets = crate::learn::ddpg::Networks::new(&settings.run.ddpg, OBS_DIM, ACT_DIM)?;
+                let params = crate::policy_import::actor_params_from_policy(
+                    &bytes,
+                    settings.task.task(),
+                    &nets.actor,
+                )
+                .map_err(|source| TrainRunError::InitPolicy {
+                    path: path.clone(),
+                    source,
+                })?;
+                Some(params)
+            }
+        };
+        Ok(TrainPlan {
+            settings,
+            starts,
+            init_actor,
+        })
     }
 
     /// The settings.
@@ -348,10 +397,10 @@ impl TrainPlan {
             path: s.out.clone(),
             source,
         })?;
-        write_atomic(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
+        write_file(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
         on_event(TrainEvent::Started { settings: s });
         for &seed in &s.seeds {
-            if !train_seed(s, seed, scene, &self.starts, resume, stop, on_event, None)? {
+            if !train_seed(self, seed, scene, resume, stop, on_event, None)? {
                 return Ok(false);
             }
         }

@@ -22,7 +22,7 @@ pub(super) fn truncate_log(path: &Path, transitions: u64) -> Result<(), TrainRun
         if !out.is_empty() {
             out.push('\n');
         }
-        write_atomic(path, out.as_bytes())?;
+        write_file(path, out.as_bytes())?;
     }
     Ok(())
 }

@@ -92,7 +92,7 @@ fn export_and_evaluate(
     let eval = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
     info.success_rate = Some(eval.success_rate() as f32);
     info.eval_episodes = eval.episodes;
-    write_atomic(out, &export_actor(net, params, norm, &info)?)?;
+    write_file(out, &export_actor(net, params, norm, &info)?)?;
     let json = serde_json::json!({
         "policy": out.file_name().map(|n| n.to_string_lossy().to_string()),
         "episodes": eval.episodes,
@@ -104,7 +104,7 @@ fn export_and_evaluate(
         "transitions": info.transitions,
     });
     if let Some(dir) = out.parent() {
-        write_atomic(&dir.join("final_eval.json"), json.to_string().as_bytes())?;
+        write_file(&dir.join("final_eval.json"), json.to_string().as_bytes())?;
     }
     Ok(eval)
 }

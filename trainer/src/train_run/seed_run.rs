@@ -6,15 +6,15 @@ use super::*;
 /// ranks of a distributed run; returns false if interrupted.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn train_seed(
-    s: &TrainSettings,
+    plan: &TrainPlan,
     seed: u64,
     scene: &Scene,
-    starts: &StartStates<DemoSource>,
     resume: bool,
     stop: &AtomicBool,
     on_event: &mut dyn FnMut(TrainEvent<'_>),
     mut server: Option<&mut dyn ParameterServer>,
 ) -> Result<bool, TrainRunError> {
+    let (s, starts) = (&plan.settings, &plan.starts);
     let dir = s.out.join(format!("seed-{seed}"));
     std::fs::create_dir_all(&dir).map_err(io_at(&dir))?;
     // Held until this seed is done: a second trainer on it is refused at once.
@@ -39,6 +39,7 @@ pub(super) fn train_seed(
             (o.task, o.reward, &o.start) == (s.task, s.reward, &s.start)
                 && (&o.demo_files, o.record_demos, o.demo_noise.to_bits())
                     == (&s.demo_files, s.record_demos, s.demo_noise.to_bits())
+                && o.init_policy == s.init_policy
         });
         if t.config() != &per_seed.run || !same_env {
             return Err(TrainRunError::SettingsDiffer { dir });
@@ -56,7 +57,11 @@ pub(super) fn train_seed(
         ] {
             let _ = std::fs::remove_file(stale);
         }
-        Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?
+        let mut t = Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?;
+        if let Some(actor) = &plan.init_actor {
+            t.set_initial_actor(actor.clone())?;
+        }
+        t
     };
     if let Some(d) = demonstrations(s, seed, &dir, scene, on_event)? {
         on_event(TrainEvent::DemosLoaded {
@@ -66,7 +71,7 @@ pub(super) fn train_seed(
         });
         trainer.set_demonstrations(d)?;
     }
-    write_atomic(&dir.join("settings.toml"), per_seed.to_toml()?.as_bytes())?;
+    write_file(&dir.join("settings.toml"), per_seed.to_toml()?.as_bytes())?;
     let mut log = OpenOptions::new()
         .create(true)
         .append(true)
@@ -128,6 +133,9 @@ pub(super) fn train_seed(
             });
         }
         log.flush().map_err(io_at(&log_path))?;
+        // On disk before the checkpoint that covers these records (resume keeps the log's records
+        // up to the checkpoint's, so a power cut must not lose them while keeping the checkpoint).
+        log.sync_data().map_err(io_at(&log_path))?;
         // Selection before the checkpoint: a kill in between repeats this chunk on resume, which
         // reaches the same policy and the same selection (deterministic), so the exported file is
         // the uninterrupted run's.

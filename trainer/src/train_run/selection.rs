@@ -75,8 +75,8 @@ pub(super) fn select_best(
     );
     if better {
         let bytes: Vec<u8> = params.iter().flat_map(|x| x.to_le_bytes()).collect();
-        write_atomic(&dir.join("best_actor.bin"), &bytes)?;
-        write_atomic(
+        write_file(&dir.join("best_actor.bin"), &bytes)?;
+        write_file(
             &dir.join("best.json"),
             serde_json::to_string(&now)?.as_bytes(),
         )?;

@@ -268,5 +268,6 @@ fn write_policy(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(d)?;
     }
-    std::fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))
+    dex_trainer::atomic_write::write_atomic(path, bytes)
+        .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -217,6 +217,14 @@ struct TrainArgs {
     /// The actor's learning rate during the pre-training (default: the actor's).
     #[arg(long)]
     pretrain_actor_lr: Option<f32>,
+    /// Start the actor from this exported f32 policy file of the task (e.g. `trainer imitate`'s
+    /// clone); run.ddpg.actor_hidden must be its hidden sizes.
+    #[arg(long)]
+    init_policy: Option<PathBuf>,
+    /// Updates that train the critic alone (the actor stays as it started) before the actor
+    /// moves: the critic rates the starting policy's own transitions first.
+    #[arg(long)]
+    critic_warmup_updates: Option<u64>,
 }
 
 #[derive(Args, Debug)]
@@ -331,7 +339,8 @@ fn export_int8(
     };
     let e = evaluate_policy_file(&draft, &scene, &eval_settings, &|| {})?;
     let file = quantise_policy_file(&eq.file, Some((e.success_rate() as f32, e.episodes)))?;
-    std::fs::write(out, &file).with_context(|| format!("cannot write {}", out.display()))?;
+    dex_trainer::atomic_write::write_atomic(out, &file)
+        .with_context(|| format!("cannot write {}", out.display()))?;
     let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
         let aligned = dex_runtime::testkit::aligned_copy(bytes);
         Ok(dex_policy::PolicyView::decode(aligned.as_bytes())?.weight_bytes())

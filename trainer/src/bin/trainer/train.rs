@@ -10,10 +10,11 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use dex_runtime::interface::ACT_DIM;
+use dex_trainer::atomic_write::write_atomic;
 use dex_trainer::env::Scene;
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
 use dex_trainer::learn::Trainer;
-use dex_trainer::train_run::{TrainEvent, TrainPlan, export_selected, write_atomic};
+use dex_trainer::train_run::{TrainEvent, TrainPlan, export_selected};
 use dex_trainer::train_settings::{self, PresetArg, RewardArg, TaskArg, TrainSettings};
 
 use crate::{EvalArgs, TrainArgs};
@@ -48,6 +49,8 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.pretrain_actor_lr.is_some()
         || a.obs_norm_from_demos
         || a.q_normalisation.is_some()
+        || a.init_policy.is_some()
+        || a.critic_warmup_updates.is_some()
 }
 
 pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
@@ -163,6 +166,12 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if let Some(w) = a.action_l2 {
         s.run.ddpg.action_l2 = w;
+    }
+    if let Some(p) = &a.init_policy {
+        s.init_policy = Some(p.clone());
+    }
+    if let Some(n) = a.critic_warmup_updates {
+        s.run.critic_warmup_updates = n;
     }
     if let Some(n) = a.pretrain_updates {
         s.run.demos.pretrain_updates = n;
@@ -441,7 +450,8 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
                     lines.push_str(&dex_runtime::testkit::action_line(e as u64, t, a));
                 }
             }
-            write_atomic(path, lines.as_bytes())?;
+            write_atomic(path, lines.as_bytes())
+                .with_context(|| format!("cannot write {}", path.display()))?;
             let outcomes: Vec<(f64, bool)> = traces.iter().map(|&(r, ok, _)| (r, ok)).collect();
             for (e, (r, ok)) in outcomes.iter().enumerate() {
                 println!("episode {e} return {r:.4} success {ok}");

@@ -82,6 +82,11 @@ pub struct RunConfig {
     /// Demonstrations in the batches and the cloning term (off by default; see
     /// [`crate::learn::demo_data`]); the buffer itself is given with [`Trainer::set_demonstrations`].
     pub demos: DemoDataConfig,
+    /// Critic warm-up (Cal-QL / WSRL's remedy for a pre-trained actor "unlearning" under a
+    /// fresh critic): after DDPGfD's pre-training, if any, the first this many updates train the
+    /// critic (and move its target) but leave the actor as it started, so the critic has rated
+    /// the starting policy's own transitions before it moves that policy. 0: off.
+    pub critic_warmup_updates: u64,
     /// Seed of everything random in the run.
     pub seed: u64,
 }
@@ -110,6 +115,7 @@ impl Default for RunConfig {
             td3: Td3Config::default(),
             n_step: 1,
             demos: DemoDataConfig::default(),
+            critic_warmup_updates: 0,
             seed: 0,
         }
     }

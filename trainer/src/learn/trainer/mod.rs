@@ -167,6 +167,23 @@ impl Trainer {
         Ok(())
     }
 
+    /// Starts a fresh run's actor and its target from `params` (e.g. an exported clone read by
+    /// `crate::policy_import`); the critic keeps its fresh initialisation. Fails once the run has
+    /// stepped or updated, and when `params` does not fit the actor.
+    pub fn set_initial_actor(&mut self, params: Vec<f32>) -> Result<(), LearnError> {
+        let p = self.progress();
+        if p.transitions > 0 || p.updates > 0 {
+            return Err(LearnError::Config {
+                field: "init_policy",
+                why: "an initial actor is given to a fresh run only",
+            });
+        }
+        self.nets.actor.layers(&params)?;
+        self.shared.target_actor.clone_from(&params);
+        self.shared.actor = params;
+        Ok(())
+    }
+
     /// The demonstration transitions given to the run, if any.
     pub fn demonstrations(&self) -> Option<&DemoBuffer> {
         self.demos.as_ref()
@@ -190,6 +207,11 @@ impl Trainer {
     /// The critic network and its current parameters.
     pub fn critic(&self) -> (&Mlp, &[f32]) {
         (&self.nets.critic, &self.shared.critic)
+    }
+
+    /// The critic's target network parameters (what the TD targets are computed with).
+    pub fn target_critic(&self) -> &[f32] {
+        &self.shared.target_critic
     }
 
     /// Cumulative counters.

@@ -128,6 +128,18 @@ pub(super) fn update(
         local.versions2[0] = c.version;
     }
     let u = ctx.updates.fetch_add(1, Ordering::Relaxed) + 1;
+    let t = cfg.ddpg.target;
+    if !pretraining && u <= cfg.demos.pretrain_updates + cfg.critic_warmup_updates {
+        // Critic warm-up: the actor stays as it started; the critic's target follows the critic.
+        for m in std::iter::once(&ctx.critic).chain(ctx.critic2.as_ref()) {
+            let mut guard = lock(m)?;
+            let c = &mut *guard;
+            if t.apply(u, &c.params, &mut c.target) {
+                c.target_version += 1;
+            }
+        }
+        return Ok(());
+    }
     if !pretraining && !td3.actor_due(u) {
         return Ok(());
     }
@@ -152,7 +164,6 @@ pub(super) fn update(
         }
     };
     actor_gradient(nets, actor, &local.critic, &loss, &mut local.bufs)?;
-    let t = cfg.ddpg.target;
     // Pre-training is cloning: it may take its own learning rate (the fine-tuning's is lower).
     let pretrain_adam;
     let actor_adam = match cfg.demos.pretrain_actor_lr {

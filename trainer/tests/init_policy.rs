@@ -1,0 +1,217 @@
+//! Starting the learner's actor from an exported policy file (`init_policy`, `--init-policy`):
+//! the imported actor computes what the file computes, and a file of another task, precision,
+//! shape or a corrupt one is refused with a clear error before any training.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_trainer::env::Task;
+use dex_trainer::export::{ExportInfo, ObsNormalisation, Precision, export_actor_with};
+use dex_trainer::learn::nets::{Activation, Mlp, MlpSpec};
+use dex_trainer::learn::{DdpgConfig, Engine, Rng, RunConfig, Trainer};
+use dex_trainer::policy_import::{ImportError, actor_params_from_policy};
+use dex_trainer::train_run::{TrainPlan, TrainRunError};
+use dex_trainer::train_settings::{SettingsError, TaskArg, TrainSettings};
+
+fn config(hidden: &[usize]) -> RunConfig {
+    RunConfig {
+        ddpg: DdpgConfig {
+            actor_hidden: hidden.to_vec(),
+            critic_hidden: vec![8],
+            ..DdpgConfig::default()
+        },
+        ..RunConfig::default()
+    }
+}
+
+/// A trainer whose 44-16-16-9 actor has random (not near-zero) weights.
+fn random_actor(seed: u64) -> Trainer {
+    let mut t = Trainer::new(config(&[16, 16]), OBS_DIM, ACT_DIM).unwrap();
+    let mut rng = Rng::seed_from_u64(seed);
+    let params: Vec<f32> = (0..t.actor().0.num_params())
+        .map(|_| rng.uniform(-0.4, 0.4))
+        .collect();
+    t.set_initial_actor(params).unwrap();
+    t
+}
+
+struct Exported {
+    file: Vec<u8>,
+    mean: Vec<f32>,
+    inv_std: Vec<f32>,
+}
+
+fn export(t: &Trainer, task: Task, precision: Precision) -> Exported {
+    let mut rng = Rng::seed_from_u64(5);
+    let mean: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-1.0, 1.0)).collect();
+    let inv_std: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(0.5, 3.0)).collect();
+    let (net, params) = t.actor();
+    let info = ExportInfo {
+        task,
+        seed: 0,
+        transitions: 0,
+        success_rate: None,
+        eval_episodes: 0,
+    };
+    let file = export_actor_with(
+        net,
+        params,
+        Some(ObsNormalisation {
+            mean: &mean,
+            inv_std: &inv_std,
+        }),
+        &info,
+        precision,
+    )
+    .unwrap();
+    Exported {
+        file,
+        mean,
+        inv_std,
+    }
+}
+
+#[test]
+fn an_imported_actor_computes_what_the_file_computes() {
+    let original = random_actor(1);
+    let e = export(&original, Task::Grasp, Precision::F32);
+    let params = actor_params_from_policy(&e.file, Task::Grasp, original.actor().0).unwrap();
+    let mut imported = Trainer::new(config(&[16, 16]), OBS_DIM, ACT_DIM).unwrap();
+    imported.set_initial_actor(params).unwrap();
+    let mut rng = Rng::seed_from_u64(9);
+    let mut worst = 0.0f32;
+    let mut moved = 0.0f32;
+    for _ in 0..200 {
+        let x: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-2.0, 2.0)).collect();
+        // The file: normalise, then the original network.
+        let z: Vec<f32> = x
+            .iter()
+            .zip(&e.mean)
+            .zip(&e.inv_std)
+            .map(|((x, m), k)| (x - m) * k)
+            .collect();
+        let (mut want, mut got, mut raw) = ([0.0; ACT_DIM], [0.0; ACT_DIM], [0.0; ACT_DIM]);
+        original.act(&z, &mut want).unwrap();
+        imported.act(&x, &mut got).unwrap();
+        original.act(&x, &mut raw).unwrap();
+        for j in 0..ACT_DIM {
+            worst = worst.max((want[j] - got[j]).abs());
+            moved = moved.max((want[j] - raw[j]).abs());
+        }
+    }
+    assert!(
+        worst < 1e-4,
+        "imported actor differs from the file by {worst}"
+    );
+    // The normalisation matters: skipping it would change the actions.
+    assert!(
+        moved > 0.05,
+        "the test's normalisation is too weak ({moved})"
+    );
+}
+
+#[test]
+fn files_that_cannot_start_the_actor_are_refused_with_the_reason() {
+    let t = random_actor(2);
+    let actor = t.actor().0;
+    let e = export(&t, Task::Stack, Precision::F32);
+    let err = actor_params_from_policy(&e.file, Task::Grasp, actor).unwrap_err();
+    assert!(matches!(err, ImportError::Task { .. }), "{err}");
+    assert!(err.to_string().contains("Stack"), "{err}");
+
+    let int8 = export(&t, Task::Grasp, Precision::Int8);
+    let err = actor_params_from_policy(&int8.file, Task::Grasp, actor).unwrap_err();
+    assert!(matches!(err, ImportError::NotF32 { layer: 0 }), "{err}");
+
+    let narrow = Mlp::new(
+        MlpSpec::stack(
+            OBS_DIM,
+            &[8, 8],
+            Activation::Relu,
+            false,
+            ACT_DIM,
+            Activation::Tanh,
+        ),
+        Engine::default(),
+    )
+    .unwrap();
+    let good = export(&t, Task::Grasp, Precision::F32);
+    let err = actor_params_from_policy(&good.file, Task::Grasp, &narrow).unwrap_err();
+    let msg = err.to_string();
+    assert!(matches!(err, ImportError::Shape { .. }), "{msg}");
+    assert!(
+        msg.contains("44-16 relu-16 relu-9 tanh") && msg.contains("44-8 relu-8 relu-9 tanh"),
+        "{msg}"
+    );
+
+    let normed = Mlp::new(
+        MlpSpec::stack(
+            OBS_DIM,
+            &[16, 16],
+            Activation::Relu,
+            true,
+            ACT_DIM,
+            Activation::Tanh,
+        ),
+        Engine::default(),
+    )
+    .unwrap();
+    let err = actor_params_from_policy(&good.file, Task::Grasp, &normed).unwrap_err();
+    assert!(matches!(err, ImportError::LayerNorm), "{err}");
+
+    let mut corrupt = good.file.clone();
+    let mid = corrupt.len() / 2;
+    corrupt[mid] ^= 0x40;
+    let err = actor_params_from_policy(&corrupt, Task::Grasp, actor).unwrap_err();
+    assert!(matches!(err, ImportError::Format(_)), "{err}");
+
+    // A run whose actor has already moved, or parameters of another length, are refused.
+    let mut fresh = Trainer::new(config(&[16, 16]), OBS_DIM, ACT_DIM).unwrap();
+    assert!(fresh.set_initial_actor(vec![0.0; 3]).is_err());
+}
+
+#[test]
+fn a_run_naming_a_bad_initial_policy_fails_before_training() {
+    let dir = std::env::temp_dir().join(format!("dex-init-policy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let stack = dir.join("stack.dxpl");
+    std::fs::write(
+        &stack,
+        export(&random_actor(3), Task::Stack, Precision::F32).file,
+    )
+    .unwrap();
+    let settings = TrainSettings {
+        task: TaskArg::Grasp,
+        out: dir.join("run"),
+        init_policy: Some(stack.clone()),
+        run: config(&[16, 16]),
+        ..TrainSettings::default()
+    };
+    let err = TrainPlan::new(settings.clone()).err().expect("refused");
+    assert!(
+        matches!(&err, TrainRunError::InitPolicy { path, source: ImportError::Task { .. } } if *path == stack),
+        "{err}"
+    );
+    let missing = TrainSettings {
+        init_policy: Some(dir.join("missing.dxpl")),
+        ..settings.clone()
+    };
+    assert!(matches!(
+        TrainPlan::new(missing).err(),
+        Some(TrainRunError::InitRead { .. })
+    ));
+    let mut normed = settings.clone();
+    normed.run.obs_norm.enabled = true;
+    assert!(matches!(
+        TrainPlan::new(normed).err(),
+        Some(TrainRunError::Settings(SettingsError::InitPolicyNorm))
+    ));
+    // The same file for its own task plans a run; nothing was written yet.
+    let ok = TrainSettings {
+        task: TaskArg::Stack,
+        ..settings
+    };
+    assert!(TrainPlan::new(ok).is_ok());
+    assert!(!dir.join("run").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
