@@ -40,6 +40,7 @@ pub mod learn;
 pub mod plot;
 pub mod policy_demo;
 pub mod policy_import;
+pub mod result_record;
 pub mod run_lock;
 pub mod run_plots;
 pub mod train_run;

@@ -306,3 +306,66 @@ fn demonstration_runs_record_their_demos_resume_and_refuse_bad_demo_settings() {
     }
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn eval_writes_a_record_that_the_results_page_accepts() {
+    let dir = std::env::temp_dir().join(format!("dex-cli-record-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let record = dir.join("reach.json");
+    let policy = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/reach_seed0.dxpl"
+    );
+    let o = trainer(&[
+        "eval",
+        policy,
+        "--episodes",
+        "3",
+        "--threads",
+        "1",
+        "--record",
+        record.to_str().unwrap(),
+        "--section",
+        "table2",
+        "--what",
+        "Reach fixture",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&record).unwrap()).unwrap();
+    // The fields scripts/results.py requires, with the evaluation's own values.
+    for key in [
+        "section",
+        "order",
+        "what",
+        "evaluated",
+        "command",
+        "successes",
+        "episodes",
+        "interval_95",
+        "start_seed",
+        "evaluation",
+        "date",
+        "machine",
+        "compute",
+        "source",
+    ] {
+        assert!(r.get(key).is_some(), "missing {key}: {r}");
+    }
+    assert_eq!(r["episodes"], 3);
+    assert_eq!(r["start_seed"], 1_000_000);
+    assert_eq!(r["what"], "Reach fixture");
+    assert_eq!(r["evaluated"]["sha256"].as_str().unwrap().len(), 64);
+    assert!(
+        r["command"].as_str().unwrap().contains("--episodes 3"),
+        "{r}"
+    );
+    let printed = text(&o);
+    let successes = r["successes"].as_u64().unwrap();
+    assert!(printed.contains(&format!("{successes}/3")), "{printed}");
+    // --record without its section and label is a usage error, and nothing is written.
+    let lone = dir.join("lone.json");
+    let o = trainer(&["eval", policy, "--record", lone.to_str().unwrap()]);
+    assert!(!o.status.success() && !lone.exists(), "{}", text(&o));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -254,6 +254,17 @@ struct EvalArgs {
     /// a8`; one thread), to compare with `hil-sim plant --actions` over the bus.
     #[arg(long)]
     actions: Option<PathBuf>,
+    /// Also write the evaluation as a record for docs/results/ (JSON: the file and its sha256,
+    /// this command, successes, episodes, 95% interval, start seed, date, machine, wall time);
+    /// `python3 scripts/results.py` builds docs/results.md from the records.
+    #[arg(long, requires_all = ["section", "what"])]
+    record: Option<PathBuf>,
+    /// The record's section of docs/results.md (`table2`, `main-job`, ...).
+    #[arg(long, requires = "record")]
+    section: Option<String>,
+    /// The record's row label (e.g. "Grasp").
+    #[arg(long, requires = "record")]
+    what: Option<String>,
 }
 
 #[derive(Args, Debug)]

@@ -14,6 +14,7 @@ use dex_trainer::atomic_write::write_atomic;
 use dex_trainer::env::Scene;
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
 use dex_trainer::learn::Trainer;
+use dex_trainer::result_record::{RecordContext, ResultRecord};
 use dex_trainer::train_run::{TrainEvent, TrainPlan, export_selected};
 use dex_trainer::train_settings::{self, PresetArg, RewardArg, TaskArg, TrainSettings};
 
@@ -435,6 +436,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         can_quantisation: !args.no_can_quantisation,
         envelope: args.envelope,
     };
+    let started = Instant::now();
     let pb = bar(
         u64::from(args.episodes),
         false,
@@ -468,6 +470,28 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         args.seed,
         describe(&e)
     );
+    if let (Some(path), Some(section), Some(what)) = (&args.record, &args.section, &args.what) {
+        let ctx = RecordContext {
+            section,
+            what,
+            policy: &args.policy,
+            bytes: &bytes,
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+            start_seed: args.seed,
+            can_quantisation: !args.no_can_quantisation,
+            envelope: args.envelope,
+            wall_s: started.elapsed().as_secs_f64(),
+            threads: if args.actions.is_some() {
+                1
+            } else {
+                args.threads
+            },
+        };
+        let json = ResultRecord::new(&e, &ctx).to_json()?;
+        write_atomic(path, json.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        println!("record written to {}", path.display());
+    }
     Ok(())
 }
 
