@@ -2,12 +2,16 @@
 //! reinforcement-learning stage that fine-tunes a clone (`trainer train --init-policy FILE`,
 //! `TrainSettings::init_policy`).
 //!
-//! The file's observation normalisation `(x - mean) / scale` is folded into the first layer
-//! (`w'[i][j] = w[i][j] / scale[i]`, `b'[j] = b[j] - sum_i w[i][j] mean[i] / scale[i]`, in f64,
-//! rounded once), so the actor takes raw observations as the learner's do. The file's clip of the
-//! normalised observations (5 for `trainer imitate`'s clones) is not representable in an affine
-//! layer and is dropped: the imported actor equals the file wherever no normalised observation
-//! exceeds the clip, which the test of this module checks on an episode's observations.
+//! Two ways in. [`actor_params_from_policy`] folds the file's observation normalisation
+//! `(x - mean) / scale` into the first layer (`w'[i][j] = w[i][j] / scale[i]`,
+//! `b'[j] = b[j] - sum_i w[i][j] mean[i] / scale[i]`, in f64, rounded once), so the actor takes raw
+//! observations as the learner's do by default. [`normalised_actor_from_policy`] keeps them apart:
+//! the run's frozen normaliser becomes the file's (`obs_norm.frozen_from_init`), so the actor is
+//! fine-tuned in the input coordinates it was trained in, and the critic sees the same. Either way
+//! the file's clip of the normalised observations (5 for `trainer imitate`'s clones) is dropped: the
+//! learner's normaliser does not clip, so the imported actor equals the file wherever no
+//! normalised observation exceeds the clip (`trainer/tests/init_policy.rs` checks both ways on
+//! observations inside it).
 
 use dex_policy::{LayerDtype, PolicyView};
 use dex_runtime::interface::{ACTION_JOINTS, OBSERVATION_FIELDS};
@@ -107,6 +111,32 @@ pub fn actor_params_from_policy(
     task: Task,
     actor: &Mlp,
 ) -> Result<Vec<f32>, ImportError> {
+    Ok(read(file, task, actor, true)?.params)
+}
+
+/// A policy file's network as the learner's actor, with the file's normalisation kept apart.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NormalisedActor {
+    /// The actor's parameters: the file's layers as they are (they take normalised inputs).
+    pub params: Vec<f32>,
+    /// The file's normalisation: subtracted per component.
+    pub mean: Vec<f32>,
+    /// Multiplied per component after the subtraction (`1 / scale` of the file).
+    pub inv_std: Vec<f32>,
+}
+
+/// The actor of `file` without folding: its layers and its normalisation apart, for a run whose
+/// frozen normaliser is the file's (`obs_norm.frozen_from_init`), so the actor is fine-tuned in
+/// the input coordinates it was trained in. The same checks as [`actor_params_from_policy`].
+pub fn normalised_actor_from_policy(
+    file: &[u8],
+    task: Task,
+    actor: &Mlp,
+) -> Result<NormalisedActor, ImportError> {
+    read(file, task, actor, false)
+}
+
+fn read(file: &[u8], task: Task, actor: &Mlp, fold: bool) -> Result<NormalisedActor, ImportError> {
     let aligned = dex_runtime::testkit::aligned_copy(file);
     let view = PolicyView::decode(aligned.as_bytes())?;
     view.check_layout(
@@ -175,7 +205,7 @@ pub fn actor_params_from_policy(
     for (index, l) in file_layers.iter().enumerate() {
         let w = get(l.weights, l.inputs * l.outputs)?;
         let b = get(l.biases, l.outputs)?;
-        if index > 0 {
+        if index > 0 || !fold {
             params.extend_from_slice(w);
             params.extend_from_slice(b);
             continue;
@@ -205,5 +235,17 @@ pub fn actor_params_from_policy(
     // The flat layout is the exporter's: per layer, input-major weights then biases (no layer
     // norm, checked above); `Mlp::layers` confirms the length.
     actor.layers(&params)?;
-    Ok(params)
+    let mut inv_std = Vec::with_capacity(n);
+    for (input, &sc) in scale.iter().enumerate() {
+        let k = 1.0 / sc;
+        if !(k.is_finite() && k > 0.0) {
+            return Err(ImportError::NotFinite { input });
+        }
+        inv_std.push(k);
+    }
+    Ok(NormalisedActor {
+        params,
+        mean: mean.to_vec(),
+        inv_std,
+    })
 }

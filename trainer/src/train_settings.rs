@@ -83,10 +83,13 @@ pub enum SettingsError {
     /// `demo_noise` is outside [0, 1].
     #[error("demo_noise must be in [0, 1]")]
     DemoNoise,
-    /// `init_policy` with observation normalisation on.
+    /// `init_policy` with a normaliser of the run's own, or `obs_norm.frozen_from_init` without
+    /// `init_policy`.
     #[error(
-        "init_policy needs run.obs_norm.enabled = false: the file's normalisation is folded into \
-         the actor's first layer"
+        "init_policy takes either run.obs_norm.enabled = false (the file's normalisation folded \
+         into the actor's first layer) or run.obs_norm.enabled = true with \
+         run.obs_norm.frozen_from_init = true (the file's normalisation kept, frozen); \
+         frozen_from_init needs init_policy"
     )]
     InitPolicyNorm,
 }
@@ -281,8 +284,9 @@ pub struct TrainSettings {
     /// Noise on the recorded demonstrations' executed arm actions.
     pub demo_noise: f32,
     /// An exported f32 policy file of the task (e.g. `trainer imitate`'s clone) whose network
-    /// starts the actor (`--init-policy`; `run.ddpg.actor_hidden` must be its hidden sizes and
-    /// observation normalisation off: the file's is folded into the first layer).
+    /// starts the actor (`--init-policy`; `run.ddpg.actor_hidden` must be its hidden sizes; with
+    /// `obs_norm` off the file's normalisation is folded into the first layer, with
+    /// `obs_norm.enabled` and `obs_norm.frozen_from_init` it becomes the run's frozen normaliser).
     pub init_policy: Option<PathBuf>,
     /// The learner.
     pub run: RunConfig,
@@ -484,7 +488,11 @@ impl TrainSettings {
         if !(self.demo_noise >= 0.0 && self.demo_noise <= 1.0) {
             return Err(SettingsError::DemoNoise);
         }
-        if self.init_policy.is_some() && self.run.obs_norm.enabled {
+        let from_init = self.run.obs_norm.frozen_from_init;
+        if self.init_policy.is_some() && self.run.obs_norm.enabled != from_init {
+            return Err(SettingsError::InitPolicyNorm);
+        }
+        if from_init && self.init_policy.is_none() {
             return Err(SettingsError::InitPolicyNorm);
         }
         Ok(())

@@ -9,7 +9,9 @@ use dex_trainer::env::Task;
 use dex_trainer::export::{ExportInfo, ObsNormalisation, Precision, export_actor_with};
 use dex_trainer::learn::nets::{Activation, Mlp, MlpSpec};
 use dex_trainer::learn::{DdpgConfig, Engine, Rng, RunConfig, Trainer};
-use dex_trainer::policy_import::{ImportError, actor_params_from_policy};
+use dex_trainer::policy_import::{
+    ImportError, actor_params_from_policy, normalised_actor_from_policy,
+};
 use dex_trainer::train_run::{TrainPlan, TrainRunError};
 use dex_trainer::train_settings::{SettingsError, TaskArg, TrainSettings};
 
@@ -111,6 +113,64 @@ fn an_imported_actor_computes_what_the_file_computes() {
 }
 
 #[test]
+fn a_normalised_import_keeps_the_files_normaliser_frozen_and_computes_the_same() {
+    let original = random_actor(4);
+    let e = export(&original, Task::Grasp, Precision::F32);
+    let a = normalised_actor_from_policy(&e.file, Task::Grasp, original.actor().0).unwrap();
+    // The layers are the file's, bit for bit (nothing folded).
+    assert_eq!(a.params, original.actor().1);
+    assert_eq!(a.mean, e.mean);
+    let mut cfg = config(&[16, 16]);
+    cfg.obs_norm.enabled = true;
+    // Without frozen_from_init the run would move the normaliser: refused.
+    let mut t = Trainer::new(cfg.clone(), OBS_DIM, ACT_DIM).unwrap();
+    assert!(
+        t.set_initial_actor_normalised(a.params.clone(), &a.mean, &a.inv_std)
+            .is_err()
+    );
+    cfg.obs_norm.frozen_from_init = true;
+    let mut t = Trainer::new(cfg, OBS_DIM, ACT_DIM).unwrap();
+    t.set_initial_actor_normalised(a.params.clone(), &a.mean, &a.inv_std)
+        .unwrap();
+    let n = t.obs_normalizer().expect("normaliser");
+    for (got, want) in n.inv_std.iter().zip(&e.inv_std) {
+        assert!((got - want).abs() <= 1e-6 * want, "{got} vs {want}");
+    }
+    let mut rng = Rng::seed_from_u64(10);
+    let mut worst = 0.0f32;
+    for _ in 0..200 {
+        let x: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-2.0, 2.0)).collect();
+        let z: Vec<f32> = x
+            .iter()
+            .zip(&e.mean)
+            .zip(&e.inv_std)
+            .map(|((x, m), k)| (x - m) * k)
+            .collect();
+        let (mut want, mut got) = ([0.0; ACT_DIM], [0.0; ACT_DIM]);
+        original.act(&z, &mut want).unwrap();
+        t.act(&x, &mut got).unwrap();
+        for j in 0..ACT_DIM {
+            worst = worst.max((want[j] - got[j]).abs());
+        }
+    }
+    assert!(
+        worst < 1e-4,
+        "normalised import differs from the file by {worst}"
+    );
+    // A scale below the normaliser's floor would be changed by it: refused.
+    let mut tiny = a.inv_std.clone();
+    tiny[0] = 1e4;
+    let mut cfg = config(&[16, 16]);
+    cfg.obs_norm.enabled = true;
+    cfg.obs_norm.frozen_from_init = true;
+    let mut t = Trainer::new(cfg, OBS_DIM, ACT_DIM).unwrap();
+    assert!(
+        t.set_initial_actor_normalised(a.params, &a.mean, &tiny)
+            .is_err()
+    );
+}
+
+#[test]
 fn files_that_cannot_start_the_actor_are_refused_with_the_reason() {
     let t = random_actor(2);
     let actor = t.actor().0;
@@ -206,6 +266,24 @@ fn a_run_naming_a_bad_initial_policy_fails_before_training() {
         TrainPlan::new(normed).err(),
         Some(TrainRunError::Settings(SettingsError::InitPolicyNorm))
     ));
+    // frozen_from_init without an initial policy is refused; with one it plans a run.
+    let mut orphan = TrainSettings {
+        init_policy: None,
+        ..settings.clone()
+    };
+    orphan.run.obs_norm.enabled = true;
+    orphan.run.obs_norm.frozen_from_init = true;
+    assert!(matches!(
+        TrainPlan::new(orphan).err(),
+        Some(TrainRunError::Settings(SettingsError::InitPolicyNorm))
+    ));
+    let mut kept = TrainSettings {
+        task: TaskArg::Stack,
+        ..settings.clone()
+    };
+    kept.run.obs_norm.enabled = true;
+    kept.run.obs_norm.frozen_from_init = true;
+    assert!(TrainPlan::new(kept).is_ok());
     // The same file for its own task plans a run; nothing was written yet.
     let ok = TrainSettings {
         task: TaskArg::Stack,

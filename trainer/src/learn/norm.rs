@@ -23,6 +23,17 @@ pub struct ObsNormConfig {
     /// pretraining on demonstrations included, and a state the demonstrations never visited cannot
     /// move the scale under a trained critic. Needs `enabled` and demonstrations in the batches.
     pub frozen_from_demos: bool,
+    /// Take the statistics from the policy file that starts the actor (`init_policy`: its mean
+    /// and scale, `Trainer::set_initial_actor_normalised`) and keep them fixed: the actor keeps the
+    /// input coordinates it was trained in, and the critic sees the same. Needs `enabled`.
+    pub frozen_from_init: bool,
+}
+
+impl ObsNormConfig {
+    /// Whether the statistics stay fixed during the run.
+    pub fn frozen(&self) -> bool {
+        self.frozen_from_demos || self.frozen_from_init
+    }
 }
 
 impl Default for ObsNormConfig {
@@ -31,6 +42,7 @@ impl Default for ObsNormConfig {
             enabled: false,
             min_std: 1e-2,
             frozen_from_demos: false,
+            frozen_from_init: false,
         }
     }
 }

@@ -319,8 +319,17 @@ pub enum TrainEvent<'a> {
 pub struct TrainPlan {
     settings: TrainSettings,
     starts: StartStates<DemoSource>,
-    /// The actor's starting parameters read from `init_policy`, when set.
-    init_actor: Option<Vec<f32>>,
+    /// The actor's starting point read from `init_policy`, when set.
+    init_actor: Option<InitActor>,
+}
+
+/// The actor's starting point read from `init_policy`.
+#[derive(Debug, Clone)]
+enum InitActor {
+    /// Normalisation folded into the first layer (raw observations).
+    Folded(Vec<f32>),
+    /// The file's layers and its normalisation, which the run keeps frozen.
+    Normalised(crate::policy_import::NormalisedActor),
 }
 
 impl TrainPlan {
@@ -356,16 +365,18 @@ impl TrainPlan {
                     source,
                 })?;
                 let nets = crate::learn::ddpg::Networks::new(&settings.run.ddpg, OBS_DIM, ACT_DIM)?;
-                let params = crate::policy_import::actor_params_from_policy(
-                    &bytes,
-                    settings.task.task(),
-                    &nets.actor,
-                )
-                .map_err(|source| TrainRunError::InitPolicy {
+                let task = settings.task.task();
+                let imported = if settings.run.obs_norm.frozen_from_init {
+                    crate::policy_import::normalised_actor_from_policy(&bytes, task, &nets.actor)
+                        .map(InitActor::Normalised)
+                } else {
+                    crate::policy_import::actor_params_from_policy(&bytes, task, &nets.actor)
+                        .map(InitActor::Folded)
+                };
+                Some(imported.map_err(|source| TrainRunError::InitPolicy {
                     path: path.clone(),
                     source,
-                })?;
-                Some(params)
+                })?)
             }
         };
         Ok(TrainPlan {

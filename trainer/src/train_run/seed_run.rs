@@ -58,8 +58,12 @@ pub(super) fn train_seed(
             let _ = std::fs::remove_file(stale);
         }
         let mut t = Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?;
-        if let Some(actor) = &plan.init_actor {
-            t.set_initial_actor(actor.clone())?;
+        match &plan.init_actor {
+            None => {}
+            Some(InitActor::Folded(params)) => t.set_initial_actor(params.clone())?,
+            Some(InitActor::Normalised(a)) => {
+                t.set_initial_actor_normalised(a.params.clone(), &a.mean, &a.inv_std)?;
+            }
         }
         t
     };

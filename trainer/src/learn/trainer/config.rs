@@ -152,6 +152,14 @@ impl RunConfig {
                 "needs obs_norm.enabled and demonstrations in the batches (demos.fraction > 0)",
             );
         }
+        if self.obs_norm.frozen_from_init
+            && (!self.obs_norm.enabled || self.obs_norm.frozen_from_demos)
+        {
+            return bad(
+                "obs_norm.frozen_from_init",
+                "needs obs_norm.enabled and not obs_norm.frozen_from_demos",
+            );
+        }
         if self.demos.uses_demos() && self.quantise.aware_from.is_some() {
             return bad(
                 "demos.fraction",

@@ -184,6 +184,54 @@ impl Trainer {
         Ok(())
     }
 
+    /// [`Trainer::set_initial_actor`] for an actor that takes normalised observations
+    /// `(x - mean) * inv_std` (a policy file's own normalisation, not folded): the run's frozen
+    /// normaliser becomes that one. Needs `obs_norm.frozen_from_init`; every `inv_std` must be
+    /// positive and at most `1 / obs_norm.min_std` (the normaliser's floor would change it).
+    pub fn set_initial_actor_normalised(
+        &mut self,
+        params: Vec<f32>,
+        mean: &[f32],
+        inv_std: &[f32],
+    ) -> Result<(), LearnError> {
+        let bad = |why| {
+            Err(LearnError::Config {
+                field: "obs_norm.frozen_from_init",
+                why,
+            })
+        };
+        if !self.cfg.obs_norm.frozen_from_init {
+            return bad("a normalised initial actor needs obs_norm.frozen_from_init");
+        }
+        let od = self.nets.obs_dim;
+        if mean.len() != od || inv_std.len() != od {
+            return Err(LearnError::Shape {
+                what: "initial normalisation",
+                expected: od,
+                got: mean.len().min(inv_std.len()),
+            });
+        }
+        let floor = self.cfg.obs_norm.min_std;
+        if inv_std
+            .iter()
+            .any(|&k| !(k > 0.0 && k.is_finite() && 1.0 / k >= floor))
+        {
+            return bad(
+                "an inv_std of the initial policy is not positive or is above 1 / obs_norm.min_std",
+            );
+        }
+        self.set_initial_actor(params)?;
+        // One pseudo-observation whose statistics give exactly this mean and standard deviation.
+        let stats = &mut self.shared.obs_stats;
+        stats.count = 1;
+        for (i, (&m, &k)) in mean.iter().zip(inv_std).enumerate() {
+            stats.mean[i] = f64::from(m);
+            let std = 1.0 / f64::from(k);
+            stats.m2[i] = std * std;
+        }
+        Ok(())
+    }
+
     /// The demonstration transitions given to the run, if any.
     pub fn demonstrations(&self) -> Option<&DemoBuffer> {
         self.demos.as_ref()

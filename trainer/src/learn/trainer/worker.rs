@@ -118,7 +118,7 @@ pub(super) fn worker_loop<E: Env>(
     let mut obs_n = vec![0.0f32; od];
     let mut eval_scratch = nets.actor.scratch(1);
     let norm_on = cfg.obs_norm.enabled;
-    let norm_moves = norm_on && !cfg.obs_norm.frozen_from_demos;
+    let norm_moves = norm_on && !cfg.obs_norm.frozen();
     let observe = |x: &[f32], norm: &mut Normalizer| -> Result<(), LearnError> {
         if norm_moves {
             let mut st = lock(&ctx.obs_stats)?;
