@@ -22,12 +22,17 @@ pub struct PolicyDemonstration {
 impl PolicyDemonstration {
     /// Decodes and checks `file` (any alignment).
     pub fn from_file_bytes(file: &[u8]) -> Result<Self, EvalError> {
+        Ok(Self::with_task(file)?.0)
+    }
+
+    /// [`PolicyDemonstration::from_file_bytes`], also giving the task the file was made for.
+    pub fn with_task(file: &[u8]) -> Result<(Self, dex_policy::Task), EvalError> {
         let aligned = Arc::new(dex_runtime::testkit::aligned_copy(file));
-        let net = {
+        let (net, task) = {
             let view = decode_jaco_policy(aligned.as_bytes())?;
-            Network::new(&view, aligned.as_bytes())?
+            (Network::new(&view, aligned.as_bytes())?, view.body().task)
         };
-        Ok(Self { file: aligned, net })
+        Ok((Self { file: aligned, net }, task))
     }
 }
 

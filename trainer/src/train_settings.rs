@@ -83,6 +83,17 @@ pub enum SettingsError {
     /// `demo_noise` is outside [0, 1].
     #[error("demo_noise must be in [0, 1]")]
     DemoNoise,
+    /// Training episodes along demonstrations longer than the task's (evaluation) episodes.
+    #[error(
+        "start.train_episode_steps = {train} is longer than the task's {eval}-step evaluation \
+         episodes (the paper: 50 of 150)"
+    )]
+    TrainEpisodeTooLong {
+        /// The setting.
+        train: u32,
+        /// The task's episode length.
+        eval: u32,
+    },
     /// `init_policy` with a normaliser of the run's own, or `obs_norm.frozen_from_init` without
     /// `init_policy`.
     #[error(
@@ -476,6 +487,15 @@ impl TrainSettings {
             && self.start.scheme != StartArg::AlongDemonstrations
         {
             return Err(SettingsError::DemonstratorPolicyScheme);
+        }
+        let eval_steps = self.task.task().episode_steps();
+        if self.start.scheme == StartArg::AlongDemonstrations
+            && self.start.train_episode_steps > eval_steps
+        {
+            return Err(SettingsError::TrainEpisodeTooLong {
+                train: self.start.train_episode_steps,
+                eval: eval_steps,
+            });
         }
         self.run.validate().map_err(SettingsError::Learner)?;
         let uses = self.run.demos.uses_demos();

@@ -1,6 +1,8 @@
 //! Starting the learner's actor from an exported policy file (`init_policy`, `--init-policy`):
 //! the imported actor computes what the file computes, and a file of another task, precision,
-//! shape or a corrupt one is refused with a clear error before any training.
+//! shape or a corrupt one is refused with a clear error before any training. Also the paper
+//! protocol's other settings refused before training (issue #27): R = 0, training episodes longer
+//! than the evaluation's, a demonstrator policy of another task.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -290,6 +292,63 @@ fn a_run_naming_a_bad_initial_policy_fails_before_training() {
         ..settings
     };
     assert!(TrainPlan::new(ok).is_ok());
+    assert!(!dir.join("run").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_paper_protocols_bad_settings_are_refused_before_training() {
+    let dir = std::env::temp_dir().join(format!("dex-protocol-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut settings = TrainSettings {
+        task: TaskArg::Stack,
+        out: dir.join("run"),
+        ..TrainSettings::default()
+    };
+    settings.start.scheme = dex_trainer::train_settings::StartArg::AlongDemonstrations;
+    // R = 0.
+    let mut r0 = settings.clone();
+    r0.run.updates_per_step = 0;
+    let err = TrainPlan::new(r0).err().expect("refused");
+    assert!(
+        err.to_string().contains("updates_per_step")
+            || format!("{err:?}").contains("updates_per_step"),
+        "{err:?}"
+    );
+    // Training episodes longer than the 150-step evaluation episodes.
+    let mut long = settings.clone();
+    long.start.train_episode_steps = 151;
+    assert!(matches!(
+        TrainPlan::new(long).err(),
+        Some(TrainRunError::Settings(
+            SettingsError::TrainEpisodeTooLong {
+                train: 151,
+                eval: 150
+            }
+        ))
+    ));
+    let mut full = settings.clone();
+    full.start.train_episode_steps = 150;
+    assert!(TrainPlan::new(full).is_ok());
+    // A demonstrator policy of another task.
+    let grasp = dir.join("grasp.dxpl");
+    std::fs::write(
+        &grasp,
+        export(&random_actor(5), Task::Grasp, Precision::F32).file,
+    )
+    .unwrap();
+    let mut other = settings.clone();
+    other.start.demonstrator_policy = Some(grasp.clone());
+    let err = TrainPlan::new(other).err().expect("refused");
+    assert!(
+        matches!(&err, TrainRunError::DemonstratorTask { path, .. } if *path == grasp),
+        "{err}"
+    );
+    assert!(err.to_string().contains("Grasp"), "{err}");
+    let mut same = settings;
+    same.task = TaskArg::Grasp;
+    same.start.demonstrator_policy = Some(grasp);
+    assert!(TrainPlan::new(same).is_ok());
     assert!(!dir.join("run").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -69,6 +69,20 @@ pub enum TrainRunError {
         /// The cause.
         source: EvalError,
     },
+    /// `start.demonstrator_policy` solves another task than the run's.
+    #[error(
+        "demonstrator policy {} solves {file:?}; the run learns {run:?}: its states would not be \
+         along this task's demonstrations",
+        path.display()
+    )]
+    DemonstratorTask {
+        /// The policy file.
+        path: PathBuf,
+        /// Its task.
+        file: dex_policy::Task,
+        /// The run's task.
+        run: dex_policy::Task,
+    },
     /// `init_policy` could not be read.
     #[error("cannot read the initial policy {}", path.display())]
     InitRead {
@@ -345,14 +359,21 @@ impl TrainPlan {
                         path: path.clone(),
                         source,
                     })?;
-                DemoSource::Policy(Box::new(
-                    PolicyDemonstration::from_file_bytes(&bytes).map_err(|source| {
-                        TrainRunError::DemonstratorPolicy {
-                            path: path.clone(),
-                            source,
-                        }
-                    })?,
-                ))
+                let (demo, task) = PolicyDemonstration::with_task(&bytes).map_err(|source| {
+                    TrainRunError::DemonstratorPolicy {
+                        path: path.clone(),
+                        source,
+                    }
+                })?;
+                let run = crate::export::task_code(settings.task.task());
+                if task != run {
+                    return Err(TrainRunError::DemonstratorTask {
+                        path: path.clone(),
+                        file: task,
+                        run,
+                    });
+                }
+                DemoSource::Policy(Box::new(demo))
             }
         };
         let starts =

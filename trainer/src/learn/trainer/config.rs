@@ -128,6 +128,12 @@ impl RunConfig {
         if self.workers == 0 {
             return bad("workers", "must be at least 1");
         }
+        if self.updates_per_step == 0 {
+            return bad(
+                "updates_per_step",
+                "must be at least 1 (R = 0 would collect transitions and never learn)",
+            );
+        }
         if self.ddpg.batch_size == 0 {
             return bad("ddpg.batch_size", "must be at least 1");
         }
