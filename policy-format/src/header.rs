@@ -17,8 +17,9 @@ pub const HEADER_LEN: usize = 24;
 /// Byte offset of the CRC-32 field inside the header.
 pub const CRC_OFFSET: usize = 20;
 
-/// CRC-32/ISO-HDLC (the zlib/Ethernet CRC) protects the whole file.
-const FILE_CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+/// CRC-32/ISO-HDLC (the zlib/Ethernet CRC): the workspace's one checksum. It protects the whole
+/// policy file, and the trainer's demo files, learner checkpoints and MPI messages use it too.
+pub const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 /// CRC-32C hashes the layout, so that a layout hash never equals a file CRC by construction.
 const LAYOUT_CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISCSI);
 
@@ -100,7 +101,7 @@ pub const fn values_offset(body_len: usize) -> usize {
 /// CRC-32 of a whole file: header bytes 0..20, then everything from byte 24 on.
 /// `file` must be at least [`HEADER_LEN`] bytes long.
 pub fn file_crc(file: &[u8]) -> u32 {
-    let mut digest = FILE_CRC.digest();
+    let mut digest = CRC32.digest();
     digest.update(file.get(..CRC_OFFSET).unwrap_or(&[]));
     digest.update(file.get(HEADER_LEN..).unwrap_or(&[]));
     digest.finalize()

@@ -38,7 +38,7 @@ pub use encode::{encode_data_into, encode_into};
 pub use encode::{encode_data_to_vec, encode_to_vec};
 pub use error::{CapacityItem, FormatError};
 pub use header::{
-    CRC_OFFSET, FORMAT_VERSION, HEADER_LEN, Header, MAGIC, MIN_FORMAT_VERSION, file_crc,
+    CRC_OFFSET, CRC32, FORMAT_VERSION, HEADER_LEN, Header, MAGIC, MIN_FORMAT_VERSION, file_crc,
     layout_hash, values_offset,
 };
 pub use view::{Capacity, LayerLayout, PolicyView, body_layout_hash};

@@ -26,6 +26,7 @@ pub struct SynthSpec<'a> {
 }
 
 /// SplitMix64: a tiny, well-known generator, so goldens never depend on an RNG crate's version.
+/// The workspace's one SplitMix64: it also seeds the xoshiro256++ core (`dex_env::rng::SeedRng`).
 #[derive(Debug, Clone)]
 pub struct SplitMix64(u64);
 

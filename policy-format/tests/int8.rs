@@ -364,13 +364,8 @@ proptest! {
         outputs in 1usize..12,
         seed in any::<u64>(),
     ) {
-        let mut state = seed | 1;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
-        };
+        let mut rng = dex_policy::synth::SplitMix64::new(seed);
+        let mut next = || rng.uniform(-1.0, 1.0);
         let w: Vec<f32> = (0..inputs * outputs).map(|_| next() * 0.7).collect();
         prop_assume!(!int8::on_grid(inputs, outputs, &w));
         let q = int8::quantise_layer(inputs, outputs, &w);

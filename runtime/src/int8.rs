@@ -378,13 +378,8 @@ mod tests {
     #[test]
     fn nonnegative_path_gives_the_same_integers() {
         // Pseudo-random non-negative inputs with exact ties, zeros, tiny and huge maxima.
-        let mut state = 0x1234_5678u32;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            state
-        };
+        let mut rng = dex_policy::synth::SplitMix64::new(0x1234_5678);
+        let mut next = move || (rng.next_u64() >> 32) as u32;
         for case in 0..200 {
             let n = 1 + (next() % 40) as usize;
             let mag = [1.0f32, 1e-3, 1e30, 1e-40, 3.0][case % 5];

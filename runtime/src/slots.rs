@@ -47,13 +47,14 @@
 
 use core::fmt;
 
-use crc::{CRC_32_ISO_HDLC, Crc, Digest};
+use crc::{Crc, Digest};
 use dex_policy::{FormatError, PolicyView};
 
 use crate::error::LoadError;
 
-/// CRC-32/ISO-HDLC (zlib's), of the transfer and of slot headers.
-pub static CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+/// CRC-32/ISO-HDLC (zlib's), of the transfer and of slot headers: the workspace's one checksum
+/// ([`dex_policy::CRC32`]), as a `static` so that a transfer's running digest can borrow it.
+pub static CRC32: Crc<u32> = dex_policy::CRC32;
 
 /// Alignment each region must have (the policy file's values are read in place).
 pub const SLOT_ALIGN: usize = 8;

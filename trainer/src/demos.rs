@@ -30,7 +30,6 @@ const MAGIC: &[u8; 8] = b"DXDEMO01";
 /// Version of the demo file format written by this build.
 pub const DEMO_FORMAT_VERSION: u32 = 1;
 const ROW: usize = OBS_DIM + ACT_DIM + ACT_DIM + 1 + OBS_DIM + 1;
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Why demonstrations could not be recorded, saved or loaded.
 #[derive(Debug, thiserror::Error)]
@@ -376,7 +375,7 @@ impl DemoSet {
             r.next_obs.iter().for_each(|&v| put(v));
             put(if r.last { 1.0 } else { 0.0 });
         }
-        let crc = CRC.checksum(&buf);
+        let crc = dex_policy::CRC32.checksum(&buf);
         buf.extend_from_slice(&crc.to_le_bytes());
         buf
     }
@@ -408,7 +407,7 @@ impl DemoSet {
         }
         let (body, tail) = bytes.split_at(bytes.len() - 4);
         let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
-        if CRC.checksum(body) != stored {
+        if dex_policy::CRC32.checksum(body) != stored {
             return Err(corrupt("checksum mismatch (truncated or damaged)"));
         }
         let u64_at = |at: usize| -> Result<u64, DemoError> {

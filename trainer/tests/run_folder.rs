@@ -146,15 +146,12 @@ fn twenty_kills_at_random_moments_leave_the_log_and_policy_of_an_uninterrupted_r
     assert!(status.success());
     let killed = dir.join("killed");
     // Kill moments from a fixed generator (reproducible), 0.2-1.5 s after each start.
-    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut rng = dex_policy::synth::SplitMix64::new(1);
     let mut kills = 0;
     let mut resume = false;
     while kills < 20 {
         let mut child = spawn(&cfg, &killed, resume);
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        std::thread::sleep(Duration::from_millis(200 + x % 1300));
+        std::thread::sleep(Duration::from_millis(200 + rng.next_u64() % 1300));
         if child.try_wait().unwrap().is_some() {
             break; // finished before the kill: nothing left to interrupt
         }

@@ -5,11 +5,13 @@
 //! next to `PATH`, flushed to disk, renamed over `PATH`, and the folder flushed, so a crash or a power
 //! cut leaves either the previous checkpoint or the new one, never a torn file.
 //!
-//! Format (little-endian): magic `DEXLRN02`; the [`RunConfig`] as JSON (u64 length + bytes); observation
+//! Format (little-endian): magic `DEXLRN03` (the format version is its last two digits); the [`RunConfig`] as JSON (u64 length + bytes); observation
 //! and action sizes; counters; shared parameters, targets, second moments and the update count; the
 //! observation statistics; per worker its generator, first moments, transition count and optional
 //! replay; the optional shared replay; with twin critics, the second critic, its target, second
-//! moment and each worker's first moment; finally an FNV-1a 64 hash of everything before it.
+//! moment and each worker's first moment; finally the CRC-32 ([`dex_policy::CRC32`], u32) of
+//! everything before it. Formats 01 and 02 (an FNV-1a 64 hash at the end) are refused as written by
+//! an older version.
 //! Demonstration transitions are not stored: the caller gives them again
 //! ([`Trainer::set_demonstrations`]). Arrays are a
 //! u64 count then the values. A replay stores only its filled rows.
@@ -23,7 +25,11 @@ use super::rng::Rng;
 use super::trainer::{Counters, RunConfig, SharedState, Trainer, WorkerState};
 use std::path::Path;
 
-const MAGIC: &[u8; 8] = b"DEXLRN02";
+const MAGIC: &[u8; 8] = b"DEXLRN03";
+/// The magic without its two version digits, to tell an older checkpoint from another file.
+const MAGIC_STEM: &[u8; 6] = b"DEXLRN";
+/// Bytes of the checksum at the end.
+const SUM: usize = 4;
 
 struct Enc {
     buf: Vec<u8>,
@@ -172,15 +178,6 @@ impl Dec<'_> {
     }
 }
 
-fn fnv1a(b: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &x in b {
-        h ^= u64::from(x);
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    h
-}
-
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LearnError + '_ {
     move |source| LearnError::Io {
         path: path.to_path_buf(),
@@ -233,21 +230,36 @@ impl Trainer {
                 e.u64(w.critic2_m.t);
             }
         }
-        let h = fnv1a(&e.buf);
-        e.u64(h);
+        let sum = dex_policy::CRC32.checksum(&e.buf);
+        e.buf.extend_from_slice(&sum.to_le_bytes());
         e.buf
     }
 
     /// Decodes [`Trainer::to_checkpoint_bytes`].
     pub fn from_checkpoint_bytes(bytes: &[u8]) -> Result<Trainer, LearnError> {
-        if bytes.len() < MAGIC.len() + 8 || &bytes[..8] != MAGIC {
+        if bytes.len() < MAGIC.len() + SUM || !bytes.starts_with(MAGIC_STEM) {
             return Err(LearnError::BadCheckpoint("not a learner checkpoint"));
         }
-        let (body, tail) = bytes.split_at(bytes.len() - 8);
-        let mut h = [0u8; 8];
-        h.copy_from_slice(tail);
-        if fnv1a(body) != u64::from_le_bytes(h) {
-            return Err(LearnError::BadCheckpoint("hash mismatch (damaged file)"));
+        match &bytes[..MAGIC.len()] {
+            b"DEXLRN01" | b"DEXLRN02" => {
+                return Err(LearnError::BadCheckpoint(
+                    "written by an older version of the trainer (checkpoint format 01 or 02, this \
+                     build reads 03): resume it with that version or start the run again",
+                ));
+            }
+            m if m != MAGIC => {
+                return Err(LearnError::BadCheckpoint(
+                    "written by a newer or unknown version of the trainer (this build reads 03)",
+                ));
+            }
+            _ => {}
+        }
+        let (body, tail) = bytes.split_at(bytes.len() - SUM);
+        let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
+        if dex_policy::CRC32.checksum(body) != stored {
+            return Err(LearnError::BadCheckpoint(
+                "checksum mismatch (damaged file)",
+            ));
         }
         let mut d = Dec { b: &body[8..] };
         let cfg: RunConfig = serde_json::from_slice(d.bytes()?)
@@ -339,5 +351,48 @@ impl Trainer {
     pub fn load(path: &Path) -> Result<Trainer, LearnError> {
         let bytes = std::fs::read(path).map_err(io_err(path))?;
         Self::from_checkpoint_bytes(&bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refused(bytes: &[u8]) -> &'static str {
+        match Trainer::from_checkpoint_bytes(bytes) {
+            Err(LearnError::BadCheckpoint(why)) => why,
+            Err(other) => panic!("another error: {other}"),
+            Ok(_) => panic!("not refused"),
+        }
+    }
+
+    #[test]
+    fn round_trips_and_refuses_damage_and_older_versions() {
+        let t = Trainer::new(RunConfig::default(), 4, 2).expect("trainer");
+        let bytes = t.to_checkpoint_bytes();
+        assert_eq!(&bytes[..8], b"DEXLRN03");
+        let n = bytes.len() - SUM;
+        assert_eq!(
+            bytes[n..],
+            dex_policy::CRC32.checksum(&bytes[..n]).to_le_bytes()
+        );
+        let back = Trainer::from_checkpoint_bytes(&bytes).expect("round trip");
+        assert_eq!(back.to_checkpoint_bytes(), bytes);
+
+        let mut flipped = bytes.clone();
+        flipped[n / 2] ^= 0x10;
+        assert_eq!(refused(&flipped), "checksum mismatch (damaged file)");
+        assert_eq!(refused(&bytes[..n]), "checksum mismatch (damaged file)");
+        // A checkpoint of an earlier version (FNV-1a 64 at the end) gets a clear error, not a
+        // checksum mismatch.
+        for old in [b"DEXLRN01", b"DEXLRN02"] {
+            let mut b = bytes.clone();
+            b[..8].copy_from_slice(old);
+            assert!(refused(&b).starts_with("written by an older version"));
+        }
+        let mut newer = bytes.clone();
+        newer[..8].copy_from_slice(b"DEXLRN04");
+        assert!(refused(&newer).starts_with("written by a newer"));
+        assert_eq!(refused(b"DXDEMO01 and more"), "not a learner checkpoint");
     }
 }

@@ -1,47 +1,42 @@
-//! A small, seedable, reproducible random number generator (xoshiro256++ seeded through SplitMix64).
+//! The learner's seedable, reproducible random number generator: the environment's xoshiro256++
+//! core ([`dex_env::rng`], the workspace's one generator) with the draws the learner needs.
 //!
 //! The learner never touches a thread-local or OS generator: every worker, environment and evaluation owns
 //! an [`Rng`] derived from the run seed with [`Rng::derive`], so a run is a pure function of its seed (for
 //! one worker). The state is four `u64`s, which checkpoints store and restore exactly.
 
-/// Xoshiro256++ generator with Gaussian sampling (Marsaglia's polar method, spare value cached).
+use dex_env::rng::SeedRng;
+
+/// The workspace's one generator core ([`SeedRng`], xoshiro256++) with `f32` draws and Gaussian
+/// sampling (Marsaglia's polar method, spare value cached).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rng {
-    s: [u64; 4],
+    core: SeedRng,
     spare: Option<f64>,
 }
 
-fn splitmix64(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 impl Rng {
-    /// A generator seeded from one `u64` (any value, zero included, is fine).
+    /// A generator seeded from one `u64` (any value, zero included, is fine): the stream of
+    /// [`SeedRng::new`]`(seed)`.
     pub fn seed_from_u64(seed: u64) -> Self {
-        let mut sm = seed;
-        let s = [
-            splitmix64(&mut sm),
-            splitmix64(&mut sm),
-            splitmix64(&mut sm),
-            splitmix64(&mut sm),
-        ];
-        Rng { s, spare: None }
+        Rng {
+            core: SeedRng::new(seed),
+            spare: None,
+        }
     }
 
-    /// An independent stream for a purpose (`stream`, e.g. worker index) derived from a seed.
+    /// An independent stream for a purpose (`stream`, e.g. worker index) derived from a seed:
+    /// the stream of [`SeedRng::derive`]`(seed, stream)`.
     pub fn derive(seed: u64, stream: u64) -> Self {
-        let mut sm = seed ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03);
-        let mixed = splitmix64(&mut sm) ^ stream;
-        Self::seed_from_u64(mixed)
+        Rng {
+            core: SeedRng::derive(seed, stream),
+            spare: None,
+        }
     }
 
     /// The raw state (four words and the cached Gaussian), for checkpoints.
     pub fn state(&self) -> ([u64; 4], Option<f64>) {
-        (self.s, self.spare)
+        (self.core.state(), self.spare)
     }
 
     /// Rebuilds a generator from [`Rng::state`]. An all-zero state (never produced by seeding) is
@@ -50,28 +45,20 @@ impl Rng {
         if s == [0; 4] {
             return Self::seed_from_u64(0);
         }
-        Rng { s, spare }
+        Rng {
+            core: SeedRng::from_state(s),
+            spare,
+        }
     }
 
     /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
-        let result = self.s[0]
-            .wrapping_add(self.s[3])
-            .rotate_left(23)
-            .wrapping_add(self.s[0]);
-        let t = self.s[1] << 17;
-        self.s[2] ^= self.s[0];
-        self.s[3] ^= self.s[1];
-        self.s[1] ^= self.s[2];
-        self.s[0] ^= self.s[3];
-        self.s[2] ^= t;
-        self.s[3] = self.s[3].rotate_left(45);
-        result
+        self.core.next_u64()
     }
 
     /// Uniform in [0, 1) with 53 random bits.
     pub fn uniform_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+        self.core.unit()
     }
 
     /// Uniform in [lo, hi).
@@ -147,5 +134,45 @@ mod tests {
         assert!((m2 / n - 1.0).abs() < 0.05);
         assert!((u / n - 0.5).abs() < 0.02);
         assert!((0..1000).all(|_| r.below(5) < 5));
+    }
+
+    /// The learner's draws on top of the core, as the separate generator of earlier versions
+    /// produced them (checkpoints and recorded runs depend on them); the core's own first outputs
+    /// are pinned in `dex_env::rng`.
+    #[test]
+    fn learner_draws_are_pinned() {
+        let mut r = Rng::seed_from_u64(7);
+        let normals = [r.normal_f64(), r.normal_f64(), r.normal_f64()].map(f64::to_bits);
+        assert_eq!(
+            normals,
+            [
+                4_610_218_009_084_539_922,
+                13_826_591_734_396_992_478,
+                4_603_020_175_525_004_683
+            ]
+        );
+        assert_eq!(r.uniform(-1.0, 2.0).to_bits(), 0x3f95_faf8);
+        assert_eq!(r.below(10), 3);
+        assert_eq!(r.normal(0.5, 2.0).to_bits(), 0x3ed7_41e8);
+        assert_eq!(
+            r.state(),
+            (
+                [
+                    14_423_224_637_211_470_029,
+                    930_035_217_420_775_976,
+                    1_535_238_655_386_890_671,
+                    2_453_487_641_546_123_688
+                ],
+                None
+            )
+        );
+        let mut a = Rng::seed_from_u64(1_000_000);
+        let mut b = SeedRng::new(1_000_000);
+        let mut d = Rng::derive(1, 1);
+        let mut e = SeedRng::derive(1, 1);
+        for _ in 0..8 {
+            assert_eq!(a.next_u64(), b.next_u64());
+            assert_eq!(d.next_u64(), e.next_u64());
+        }
     }
 }

@@ -11,7 +11,7 @@
 //! | 4 | sending rank |
 //! | 8 | body length in bytes |
 //! | body | per kind, below |
-//! | 8 | FNV-1a 64 of everything before it |
+//! | 4 | CRC-32 ([`dex_policy::CRC32`]) of everything before it |
 //!
 //! Arrays are a u32 count then the values. A [`Push`] body: transitions, episodes and updates
 //! since the previous push (u64 each), the sum of training returns (f64) and their count (u64),
@@ -28,8 +28,11 @@
 
 use super::DistributedError;
 
-/// The wire version; a change of any layout above bumps it.
-pub const VERSION: u16 = 1;
+/// The wire version; a change of any layout above bumps it (version 1 ended in an FNV-1a 64
+/// checksum, version 2 in a CRC-32).
+pub const VERSION: u16 = 2;
+/// Bytes of the checksum at the end.
+const SUM: usize = 4;
 const MAGIC: &[u8; 4] = b"DXMP";
 const HEADER: usize = 4 + 2 + 1 + 1 + 4 + 8;
 const KIND_PUSH: u8 = 1;
@@ -164,8 +167,8 @@ pub fn encode(rank: u32, msg: &Message) -> Vec<u8> {
     }
     let body = (b.len() - HEADER) as u64;
     b[HEADER - 8..HEADER].copy_from_slice(&body.to_le_bytes());
-    let h = fnv1a(&b);
-    put_u64(&mut b, h);
+    let sum = dex_policy::CRC32.checksum(&b);
+    put_u32(&mut b, sum);
     b
 }
 
@@ -174,27 +177,27 @@ pub fn encode(rank: u32, msg: &Message) -> Vec<u8> {
 /// rank and the message.
 pub fn decode(bytes: &[u8], net_sizes: &[usize]) -> Result<(u32, Message), DistributedError> {
     let bad = |why: &'static str| DistributedError::BadMessage { why };
-    if bytes.len() < HEADER + 8 {
+    if bytes.len() < HEADER + SUM {
         return Err(bad("shorter than a header"));
     }
     if &bytes[..4] != MAGIC {
         return Err(bad("wrong magic"));
     }
     let mut d = Dec { b: &bytes[4..] };
-    if d.u16()? != VERSION {
-        return Err(bad("wrong wire version"));
+    match d.u16()? {
+        VERSION => {}
+        v if v < VERSION => return Err(bad("older wire version (a rank of an older build)")),
+        _ => return Err(bad("wrong wire version")),
     }
     let kind = d.u8()?;
     let _zero = d.u8()?;
     let rank = d.u32()?;
     let body = d.u64()?;
-    if body != (bytes.len() - HEADER - 8) as u64 {
+    if body != (bytes.len() - HEADER - SUM) as u64 {
         return Err(bad("length does not match the header"));
     }
-    let (payload, sum) = bytes.split_at(bytes.len() - 8);
-    let mut s = [0u8; 8];
-    s.copy_from_slice(sum);
-    if u64::from_le_bytes(s) != fnv1a(payload) {
+    let (payload, sum) = bytes.split_at(bytes.len() - SUM);
+    if u32::from_le_bytes([sum[0], sum[1], sum[2], sum[3]]) != dex_policy::CRC32.checksum(payload) {
         return Err(bad("checksum mismatch"));
     }
     let mut d = Dec {
@@ -296,16 +299,6 @@ fn put_f32s(b: &mut Vec<u8>, v: &[f32]) {
     for x in v {
         b.extend_from_slice(&x.to_le_bytes());
     }
-}
-
-/// FNV-1a 64 (as the learner's checkpoints use).
-fn fnv1a(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &x in bytes {
-        h ^= u64::from(x);
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    h
 }
 
 struct Dec<'a> {
@@ -418,9 +411,9 @@ mod tests {
 
     /// Re-seals a message whose bytes a test changed, so that only the change is wrong.
     fn reseal(mut b: Vec<u8>) -> Vec<u8> {
-        let n = b.len() - 8;
-        let h = fnv1a(&b[..n]);
-        b[n..].copy_from_slice(&h.to_le_bytes());
+        let n = b.len() - SUM;
+        let sum = dex_policy::CRC32.checksum(&b[..n]);
+        b[n..].copy_from_slice(&sum.to_le_bytes());
         b
     }
 
@@ -436,10 +429,10 @@ mod tests {
     fn header_layout_is_pinned() {
         let b = encode(2, &Message::Stop);
         assert_eq!(&b[..4], b"DXMP");
-        assert_eq!(&b[4..8], &[1, 0, 3, 0]);
+        assert_eq!(&b[4..8], &[2, 0, 3, 0]);
         assert_eq!(&b[8..12], &[2, 0, 0, 0]);
         assert_eq!(&b[12..20], &[0; 8]);
-        assert_eq!(b.len(), HEADER + 8);
+        assert_eq!(b.len(), HEADER + SUM);
     }
 
     fn refused(b: &[u8]) -> &'static str {
@@ -452,8 +445,13 @@ mod tests {
     #[test]
     fn wrong_version_is_refused() {
         let mut b = encode(1, &push());
-        b[4] = 2;
-        assert_eq!(refused(&reseal(b)), "wrong wire version");
+        b[4] = 3;
+        assert_eq!(refused(&reseal(b.clone())), "wrong wire version");
+        b[4] = 1;
+        assert_eq!(
+            refused(&reseal(b)),
+            "older wire version (a rank of an older build)"
+        );
     }
 
     #[test]
@@ -469,10 +467,10 @@ mod tests {
         assert_eq!(refused(&long), "length does not match the header");
         assert_eq!(refused(&[]), "shorter than a header");
         // A header that claims the right length around a body cut inside an array.
-        let mut cut = b[..b.len() - 8 - 40].to_vec();
+        let mut cut = b[..b.len() - SUM - 40].to_vec();
         let body = (cut.len() - HEADER) as u64;
         cut[HEADER - 8..HEADER].copy_from_slice(&body.to_le_bytes());
-        cut.extend_from_slice(&[0; 8]);
+        cut.extend_from_slice(&[0; SUM]);
         assert_eq!(refused(&reseal(cut)), "ends inside the body");
     }
 
