@@ -9,33 +9,85 @@
 //! so it is an oracle at any state: cloning it is plain regression, and DAgger can ask it about
 //! the learner's own states (`dex_trainer::imitation`).
 //!
-//! Placing differs from the phase machine's on purpose: brick 1 is not turned to brick 2's yaw (the
-//! stack predicate is an offset of origins and a misaligned brick rests on the studs inside it),
-//! and it comes down in proportion to how well it is centred rather than after a threshold. Both
-//! make the label a smooth function of the state: with the yaw-aligned, thresholded placing a
-//! cloned Stack policy hovered over brick 2 in 23 of 32 failures (docs/imitation.md); without it
-//! the demonstrator still stacks 96% (192/200, against 98.5%) and its clones do better.
+//! Placing differs from the phase machine's: brick 1 comes down in proportion to how well it is
+//! centred over brick 2 and turned to brick 2's yaw (modulo the half turn) rather than after a
+//! threshold, so the label stays a continuous function of the state where it can (with the
+//! thresholded placing a cloned Stack policy hovered over brick 2 in 23 of 32 failures,
+//! docs/imitation.md). Session 5 did not turn brick 1 at all; a misaligned brick rests on brick 2's
+//! studs and, held near its edge as the StackInHand starts hold it, pivots off them when the fingers
+//! open (most of its StackInHand failures).
+//!
+//! Grasping (issue #26): the fingers approach at [`APPROACH_FINGERS`] (0.8 rad), not the phase
+//! machine's 0.5: from 0.5 a closing finger swings down before it swings in and caught on the table
+//! in most Grasp failures. "Closed" is then [`CLOSED`] = 0.95. A finger whose knuckle is near brick
+//! 2 approaches tucked ([`TUCKED`], [`TUCK_GAP`]) so it does not come down on brick 2, and where
+//! the two grasp sides are about equally far for the wrist the hand takes the one that keeps its
+//! knuckles off brick 2 ([`FLIP_GAP`], [`FLIP_TURN`]). Released over brick 2, brick 1 keeps being
+//! released while it stays within [`RELEASE_XY`] of the stacking site.
 //!
 //! Thresholds are radians for fingers, metres and m/s, measured on the phase machine's episodes: a
-//! gripped brick holds the fingers at a mean 1.0-1.2 rad, the pre-shape is 0.5, settling fingers
-//! creep below 0.25 rad/s.
+//! gripped brick holds the fingers at a mean 1.0-1.2 rad, settling fingers creep below 0.25 rad/s.
 
 use dex_runtime::interface::ACT_DIM;
 
 use super::EnvError;
 use super::demo::{
     APPROACH_HEIGHT, CARRY_CLEARANCE, LIFT_HEIGHT, MAX_SPEED, PRESHAPE, add, nearest_equivalent,
-    sub, track, yaw_of,
+    sub, track, wrap_half_pi, yaw_of,
 };
 use super::environment::{GRASP_DEPTH, JacoEnv};
 use super::kinematics::{pinch_pose, xmat_rotation};
-use super::scene::{ARM_JOINTS, BRICK_HEIGHT};
+use super::scene::{ARM_JOINTS, BRICK_HALF_EXTENTS, BRICK_HEIGHT, FINGER_JOINTS};
 use super::start_states::Demonstration;
 use super::tasks::Task;
+use mujoco_rs::prelude::MjtObjBase;
 use nalgebra::{Vector2, Vector3};
+use std::f64::consts::PI;
 
-/// Mean finger angle above which the hand counts as closed (gripping holds 1.0-1.2).
-pub const CLOSED: f64 = 0.8;
+/// The finger (proximal phalanx) bodies, whose origins are the knuckles.
+const KNUCKLES: [&str; FINGER_JOINTS] = ["hand/b_finger_1", "hand/b_finger_2", "hand/b_finger_3"];
+
+/// Horizontal distance from `p` to the footprint of a brick at `origin` with orientation `m`
+/// (row-major), 0 inside it.
+fn footprint_gap(p: &[f64; 3], origin: &[f64; 3], m: &[f64; 9]) -> f64 {
+    let d = [p[0] - origin[0], p[1] - origin[1], p[2] - origin[2]];
+    // Along the brick's x and y axes (columns of m).
+    let x = m[0] * d[0] + m[3] * d[1] + m[6] * d[2];
+    let y = m[1] * d[0] + m[4] * d[1] + m[7] * d[2];
+    let gx = (x.abs() - BRICK_HALF_EXTENTS[0]).max(0.0);
+    let gy = (y.abs() - BRICK_HALF_EXTENTS[1]).max(0.0);
+    gx.hypot(gy)
+}
+
+/// Mean finger angle above which the hand counts as closed (gripping holds 1.0-1.2; the fingers
+/// approach at [`APPROACH_FINGERS`], so "closed" must lie clearly above that).
+pub const CLOSED: f64 = 0.95;
+/// Finger angle (rad) the fingers hold while approaching the brick. At 0.8 the fingertips hang at
+/// the low point of their arc, beside the brick and about 2.5 cm off its sides: closing from there
+/// moves them inwards, whereas from the phase machine's 0.5 they swing down first and a finger can
+/// catch on the table (the failures of the first version: one finger stuck near 0.4 while the others
+/// closed).
+pub const APPROACH_FINGERS: f64 = 0.8;
+/// Finger angle (rad) of a tucked finger while approaching: its tip about 1 cm further in than at
+/// [`APPROACH_FINGERS`].
+pub const TUCKED: f64 = 0.95;
+/// A finger is tucked ([`TUCKED`]) while its knuckle is within this horizontal distance (m) of brick
+/// 2's footprint: at [`APPROACH_FINGERS`] its tip would reach over brick 2 and, coming down, rest on
+/// it and hold the hand above the grasp point (most of the remaining Grasp failures, brick 2 about
+/// 8 cm away). The knuckle is fixed in the hand, so the choice does not flip as the finger moves.
+pub const TUCK_GAP: f64 = 0.03;
+/// The hand grasps brick 1 from the other side (the half turn from the brick's yaw nearest its own)
+/// when, at the grasp point, a knuckle would come within this distance (m) of brick 2's footprint and
+/// the other side keeps the knuckles further away. A function of the state (brick poses, hand yaw):
+/// past the quarter turn the other side is the nearest and stays chosen.
+pub const FLIP_GAP: f64 = 0.01;
+/// The [`FLIP_GAP`] flip applies only where the other side is at most this hand turn (rad) away, i.e.
+/// where the two sides are nearly as far (a longer turn costs more of the episode than it saves).
+pub const FLIP_TURN: f64 = 2.6;
+/// Brick 1 counts as set down on brick 2 for release within this horizontal offset (m) of the stacking
+/// site (and [`PLACE_DZ`] vertically): once the fingers start opening the brick may shift a little,
+/// and the release must go on rather than squeeze again.
+pub const RELEASE_XY: f64 = 0.006;
 /// Mean finger angle below which released fingers are open enough to move away.
 pub const OPENED: f64 = 0.55;
 /// Finger speed below which closing fingers have settled on the brick.
@@ -51,14 +103,18 @@ pub const AT_GRASP: f64 = 0.008;
 pub const DESCEND_XY: f64 = 0.015;
 /// See [`DESCEND_XY`].
 pub const DESCEND_YAW: f64 = 0.08;
-/// Brick 1 centred on the stacking site for release (horizontal, vertical).
-pub const PLACE_XY: f64 = 0.003;
-/// See [`PLACE_XY`].
+/// Brick 1 low enough over the stacking site for release (vertical, with [`RELEASE_XY`]).
 pub const PLACE_DZ: f64 = 0.007;
 /// Horizontal offset of brick 1 from the stacking site within which it is lowered all the way.
 pub const PLACE_CENTRED: f64 = 0.003;
 /// Offset span (beyond [`PLACE_CENTRED`]) over which the lowering blends back to the carry height.
 pub const PLACE_BLEND: f64 = 0.007;
+/// Yaw error (rad) between held brick 1 and brick 2 within which brick 1 is lowered all the way: an
+/// aligned brick seats between brick 2's studs, a misaligned one rests on them and pivots off when
+/// the fingers open.
+pub const PLACE_ALIGNED: f64 = 0.05;
+/// Yaw error span (beyond [`PLACE_ALIGNED`]) over which the lowering blends back to the carry height.
+pub const PLACE_ALIGN_BLEND: f64 = 0.1;
 /// Brick 1 height from which a held brick is carried rather than lifted straight up.
 pub const CARRY_FROM: f64 = 0.035;
 /// Speed of the pinch site while lowering onto brick 2.
@@ -128,6 +184,26 @@ impl MarkovDemonstrator {
             .map(|&a| data.qvel().get(a).copied().unwrap_or(0.0).abs())
             .fold(0.0, f64::max);
         let preshape = ((PRESHAPE - f_mean) * 4.0).clamp(-1.0, 1.0);
+        // Per finger: approach at APPROACH_FINGERS, or TUCKED next to brick 2.
+        let model = env.scene().model();
+        let knuckles: [Option<[f64; 3]>; FINGER_JOINTS] = core::array::from_fn(|k| {
+            model
+                .name_to_id(MjtObjBase::mjOBJ_BODY, KNUCKLES[k])
+                .map(body)
+        });
+        let approach_fingers: [f64; FINGER_JOINTS] = core::array::from_fn(|k| {
+            let q = finger_joints
+                .get(k)
+                .and_then(|&a| data.qpos().get(a).copied())
+                .unwrap_or(0.0);
+            let near_brick2 = knuckles[k].is_some_and(|p| footprint_gap(&p, &b2, &m2) < TUCK_GAP);
+            let want = if near_brick2 {
+                TUCKED
+            } else {
+                APPROACH_FINGERS
+            };
+            ((want - q) * 4.0).clamp(-1.0, 1.0)
+        });
         let gentle_open = preshape.max(-0.4);
         let closed = f_mean > CLOSED;
         let in_hand = Vector3::from(sub(&b1, &pinch)).norm() < IN_HAND;
@@ -139,13 +215,46 @@ impl MarkovDemonstrator {
         ];
         let on_stack = env.reward_state().predicates().stack;
         let site_xy = Vector2::new(site[0] - b1[0], site[1] - b1[1]).norm();
-        let placed = site_xy < PLACE_XY && b1[2] - site[2] < PLACE_DZ;
+        let set_down = site_xy < RELEASE_XY && b1[2] - site[2] < PLACE_DZ;
         let stacking = matches!(self.task, Task::Stack | Task::StackInHand);
 
         let grasp_point = [b1[0], b1[1], b1[2] + GRASP_DEPTH];
         let to_grasp = sub(&grasp_point, &pinch);
-        let grasp_yaw = nearest_equivalent(yaw_of(&xmat_rotation(&m1)), hand_yaw);
+        // The grasp yaw: the brick's yaw nearest the hand's, or the half turn from it if a knuckle
+        // would come within FLIP_GAP of brick 2 and the other side keeps the knuckles further away.
+        let knuckle_gap = |yaw: f64| {
+            let (s, c) = (yaw - hand_yaw).sin_cos();
+            knuckles
+                .iter()
+                .flatten()
+                .map(|k| {
+                    let (dx, dy) = (k[0] - pinch[0], k[1] - pinch[1]);
+                    let at = [
+                        grasp_point[0] + c * dx - s * dy,
+                        grasp_point[1] + s * dx + c * dy,
+                        k[2],
+                    ];
+                    footprint_gap(&at, &b2, &m2)
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let near = nearest_equivalent(yaw_of(&xmat_rotation(&m1)), hand_yaw);
+        let far = if near >= hand_yaw {
+            near - PI
+        } else {
+            near + PI
+        };
+        let grasp_yaw = if (far - hand_yaw).abs() < FLIP_TURN
+            && knuckle_gap(near) < FLIP_GAP
+            && knuckle_gap(far) > knuckle_gap(near)
+        {
+            far
+        } else {
+            near
+        };
         let up_from_here = |z: f64| [pinch[0], pinch[1], z];
+        // Hand turn that aligns held brick 1 with brick 2 (modulo the bricks' half-turn symmetry).
+        let place_turn = wrap_half_pi(yaw_of(&xmat_rotation(&m2)) - yaw_of(&xmat_rotation(&m1)));
 
         let (phase, target, yaw, speed, finger_cmd) = if stacking && on_stack && f_mean < OPENED {
             (
@@ -153,15 +262,15 @@ impl MarkovDemonstrator {
                 up_from_here(site[2] + 0.1),
                 hand_yaw,
                 MAX_SPEED,
-                gentle_open,
+                [gentle_open; FINGER_JOINTS],
             )
-        } else if stacking && in_hand && f_mean >= OPENED && (placed || (on_stack && !closed)) {
+        } else if stacking && in_hand && f_mean >= OPENED && set_down {
             (
                 MarkovPhase::Release,
                 pinch,
                 hand_yaw,
                 MAX_SPEED,
-                gentle_open,
+                [gentle_open; FINGER_JOINTS],
             )
         } else if held && self.task == Task::Grasp {
             (
@@ -169,7 +278,7 @@ impl MarkovDemonstrator {
                 up_from_here(LIFT_HEIGHT),
                 hand_yaw,
                 MAX_SPEED,
-                1.0,
+                [1.0; FINGER_JOINTS],
             )
         } else if held && stacking {
             if b1[2] < CARRY_FROM && site_xy > 0.01 {
@@ -178,14 +287,16 @@ impl MarkovDemonstrator {
                     up_from_here(pinch[2] + 0.05),
                     hand_yaw,
                     MAX_SPEED,
-                    1.0,
+                    [1.0; FINGER_JOINTS],
                 )
             } else {
-                // Carry to above the stacking site, coming down as brick 1 centres over it: fully
-                // lowered within PLACE_CENTRED, at the carry height from PLACE_CENTRED +
-                // PLACE_BLEND off. The hand keeps its yaw (the stack predicate and the studs do not
-                // need the bricks aligned), so the label is a smooth function of the offset.
-                let w = ((site_xy - PLACE_CENTRED) / PLACE_BLEND).clamp(0.0, 1.0);
+                // Carry to above the stacking site, coming down as brick 1 centres over it and turns
+                // to brick 2's yaw: fully lowered within PLACE_CENTRED and PLACE_ALIGNED, at the
+                // carry height from PLACE_CENTRED + PLACE_BLEND (PLACE_ALIGNED + PLACE_ALIGN_BLEND)
+                // off, so the label is a continuous function of the offset and the yaw error.
+                let w = ((site_xy - PLACE_CENTRED) / PLACE_BLEND)
+                    .max((place_turn.abs() - PLACE_ALIGNED) / PLACE_ALIGN_BLEND)
+                    .clamp(0.0, 1.0);
                 let height = -0.003 + (CARRY_CLEARANCE + 0.003) * w;
                 let want = [site[0], site[1], site[2] + height];
                 let (phase, speed) = if w < 1.0 {
@@ -193,11 +304,17 @@ impl MarkovDemonstrator {
                 } else {
                     (MarkovPhase::Carry, MAX_SPEED)
                 };
-                (phase, add(&pinch, &sub(&want, &b1)), hand_yaw, speed, 1.0)
+                (
+                    phase,
+                    add(&pinch, &sub(&want, &b1)),
+                    hand_yaw + place_turn,
+                    speed,
+                    [1.0; FINGER_JOINTS],
+                )
             }
         } else if self.task != Task::Reach
             && Vector3::from(to_grasp).norm() < AT_GRASP
-            && f_mean > PRESHAPE - 0.1
+            && f_mean > APPROACH_FINGERS - 0.1
         {
             // At the grasp point: close, and lift once the fingers have settled on the brick.
             if closed && finger_speed < SETTLED {
@@ -206,10 +323,16 @@ impl MarkovDemonstrator {
                     up_from_here(LIFT_HEIGHT),
                     hand_yaw,
                     MAX_SPEED,
-                    1.0,
+                    [1.0; FINGER_JOINTS],
                 )
             } else {
-                (MarkovPhase::Close, grasp_point, hand_yaw, MAX_SPEED, 1.0)
+                (
+                    MarkovPhase::Close,
+                    grasp_point,
+                    hand_yaw,
+                    MAX_SPEED,
+                    [1.0; FINGER_JOINTS],
+                )
             }
         } else {
             // Approach: above the brick at the approach height, coming down as the hand aligns.
@@ -227,12 +350,12 @@ impl MarkovDemonstrator {
                 target,
                 grasp_yaw,
                 MAX_SPEED,
-                preshape,
+                approach_fingers,
             )
         };
         let mut action = track(env, &target, yaw, speed);
-        for a in &mut action[ARM_JOINTS..] {
-            *a = finger_cmd as f32;
+        for (a, c) in action[ARM_JOINTS..].iter_mut().zip(finger_cmd) {
+            *a = c as f32;
         }
         (phase, action)
     }
