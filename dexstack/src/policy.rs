@@ -3,9 +3,9 @@
 use dex_env::evaluate::{EVAL_WIDTH, decode_jaco_policy, physical_to_env_action};
 use dex_policy::PolicyView;
 use dex_runtime::Network;
+use dex_runtime::aligned::AlignedBytes;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-use dex_runtime::testkit::AlignedBytes;
 
 use crate::error::{Error, Result};
 
@@ -60,7 +60,7 @@ pub struct LoadedPolicy {
 impl LoadedPolicy {
     /// Decodes `file` (any alignment) and checks it against the Jaco cell's layout.
     pub fn from_bytes(file: &[u8]) -> Result<Self> {
-        let aligned = dex_runtime::testkit::aligned_copy(file);
+        let aligned = dex_runtime::aligned::aligned_copy(file);
         let (net, info, task) = {
             let view = decode_jaco_policy(aligned.as_bytes())?;
             let net =

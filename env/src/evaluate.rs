@@ -224,7 +224,7 @@ pub fn episode_traces(
     if settings.episodes == 0 {
         return Err(EvalError::NoEpisodes);
     }
-    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = decode_jaco_policy(aligned.as_bytes())?;
     let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
     let mut env = JacoEnv::new(scene, settings.env);
@@ -258,7 +258,7 @@ pub fn episode_outcomes(
     if settings.episodes == 0 {
         return Err(EvalError::NoEpisodes);
     }
-    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = decode_jaco_policy(aligned.as_bytes())?;
     let next = AtomicU32::new(0);
     let threads = settings.threads.clamp(1, settings.episodes as usize);
@@ -314,7 +314,7 @@ pub fn heldout_observations(
     episodes: u32,
     seed: u64,
 ) -> Result<Vec<[f32; OBS_DIM]>, EvalError> {
-    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = PolicyView::decode(aligned.as_bytes())?;
     let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
     let mut env = JacoEnv::new(scene, env);
@@ -364,8 +364,8 @@ pub fn action_errors(
     observations: &[[f32; OBS_DIM]],
 ) -> Result<Vec<f64>, EvalError> {
     let (fa, fb) = (
-        dex_runtime::testkit::aligned_copy(a),
-        dex_runtime::testkit::aligned_copy(b),
+        dex_runtime::aligned::aligned_copy(a),
+        dex_runtime::aligned::aligned_copy(b),
     );
     let (va, vb) = (
         PolicyView::decode(fa.as_bytes())?,

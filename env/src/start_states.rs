@@ -22,8 +22,8 @@
 //!   trajectories: ~100 MB per environment). P = 0 runs a fresh demonstration at every start.
 //!
 //! Every handed-over state is a state the simulation reached by stepping: nothing is teleported, so
-//! contacts and velocities are consistent (`tests/env_start_states.rs` checks that a held brick stays
-//! held after the hand-over).
+//! contacts and velocities are consistent (`env/tests/env_start_states.rs` checks that a held brick
+//! stays held after the hand-over).
 
 use std::collections::HashMap;
 

@@ -507,7 +507,7 @@ fn make_policy(
         dex_runtime::testkit::jaco_policy(hidden, seed)?
     };
     let bytes = if int8 {
-        let aligned = dex_runtime::testkit::aligned_copy(&bytes);
+        let aligned = dex_runtime::aligned::aligned_copy(&bytes);
         let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
         dex_policy::int8::quantise_policy(&view, |_| true, None)?
     } else {

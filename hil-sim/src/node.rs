@@ -20,8 +20,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use dex_policy::PolicyView;
+use dex_runtime::aligned::aligned_copy;
 use dex_runtime::slots::{FLASH_RESPONSE_BASE, FlashStatus};
-use dex_runtime::testkit::aligned_copy;
 use dex_runtime::{
     Clock, Controller, ControllerConfig, Diagnostics, MockClock, Network, Outbox, PolicySlots,
 };

@@ -12,6 +12,8 @@
 //!   [`interface`] the observation and action layout they carry.
 //! - [`seeds`] holds [`seeds::episode_seed`], the start seed of each evaluation episode, shared by
 //!   every program that runs episodes.
+//! - [`aligned`] (`std` only) holds [`aligned::aligned_copy`], the 8-byte-aligned copy of a policy
+//!   file that host programs decode and evaluate in place.
 //!
 //! `#![no_std]`, no `alloc`, no heap: every buffer has a size fixed at compile time, and one call
 //! does bounded work (at most one forward pass). It does not drive a CAN peripheral: a board
@@ -22,6 +24,8 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+#[cfg(feature = "std")]
+pub mod aligned;
 pub mod can;
 pub mod clock;
 pub mod controller;

@@ -8,6 +8,10 @@ use dex_policy::{Activation, FormatError, Task};
 
 use crate::interface::{ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS, quantity_of};
 
+/// Re-exported for tests, benchmarks and examples written against the test kit; production code
+/// uses [`crate::aligned`].
+pub use crate::aligned::{AlignedBytes, aligned_copy};
+
 /// An observation field of a synthetic policy's layout: (name, size).
 pub type ObservationField = (&'static str, u16);
 /// An action joint of a synthetic policy's layout: (name, scale, min, max).
@@ -108,31 +112,6 @@ pub fn f32s_le(bytes: &[u8]) -> Vec<f32> {
         .chunks_exact(4)
         .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .collect()
-}
-
-/// A byte buffer whose start is 8-byte aligned, so a policy's values can be borrowed as `&[f32]`.
-pub fn aligned_copy(bytes: &[u8]) -> AlignedBytes {
-    let mut words = std::vec![0u64; bytes.len().div_ceil(8)];
-    bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
-    AlignedBytes {
-        words,
-        len: bytes.len(),
-    }
-}
-
-/// Owned bytes with 8-byte alignment (see [`aligned_copy`]).
-#[derive(Debug, Clone)]
-pub struct AlignedBytes {
-    words: Vec<u64>,
-    len: usize,
-}
-
-impl AlignedBytes {
-    /// The bytes.
-    pub fn as_bytes(&self) -> &[u8] {
-        let all: &[u8] = bytemuck::cast_slice(&self.words);
-        &all[..self.len]
-    }
 }
 
 /// One CAN test vector: the bytes the Rust codec produced and the physical signal values they carry.

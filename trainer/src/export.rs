@@ -93,7 +93,7 @@ pub fn quantise_policy_file(
     f32_file: &[u8],
     evaluation: Option<(f32, u32)>,
 ) -> Result<Vec<u8>, ExportError> {
-    let aligned = dex_runtime::testkit::aligned_copy(f32_file);
+    let aligned = dex_runtime::aligned::aligned_copy(f32_file);
     let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
     let provenance = Provenance {
         success_rate: evaluation.map(|e| e.0),
@@ -171,7 +171,7 @@ pub fn equalise_policy_file(
     f32_file: &[u8],
     calibration: &[[f32; dex_runtime::interface::OBS_DIM]],
 ) -> Result<Equalised, ExportError> {
-    let aligned = dex_runtime::testkit::aligned_copy(f32_file);
+    let aligned = dex_runtime::aligned::aligned_copy(f32_file);
     let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
     let values = view.values().as_slice()?;
     let n = view.body().obs_dim();
@@ -311,7 +311,7 @@ pub fn export_actor_with(
     match precision {
         Precision::F32 => Ok(file),
         Precision::Int8 => {
-            let aligned = dex_runtime::testkit::aligned_copy(&file);
+            let aligned = dex_runtime::aligned::aligned_copy(&file);
             let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
             Ok(dex_policy::int8::quantise_policy(&view, |_| true, None)?)
         }

@@ -5,8 +5,8 @@
 use std::sync::Arc;
 
 use dex_runtime::Network;
+use dex_runtime::aligned::AlignedBytes;
 use dex_runtime::interface::ACT_DIM;
-use dex_runtime::testkit::AlignedBytes;
 
 use crate::env::{Demonstration, Demonstrator, EnvError, JacoEnv, MarkovDemonstrator};
 use crate::evaluate::{EVAL_WIDTH, EvalError, decode_jaco_policy, physical_to_env_action};
@@ -27,7 +27,7 @@ impl PolicyDemonstration {
 
     /// [`PolicyDemonstration::from_file_bytes`], also giving the task the file was made for.
     pub fn with_task(file: &[u8]) -> Result<(Self, dex_policy::Task), EvalError> {
-        let aligned = Arc::new(dex_runtime::testkit::aligned_copy(file));
+        let aligned = Arc::new(dex_runtime::aligned::aligned_copy(file));
         let (net, task) = {
             let view = decode_jaco_policy(aligned.as_bytes())?;
             (Network::new(&view, aligned.as_bytes())?, view.body().task)

@@ -137,7 +137,7 @@ pub fn normalised_actor_from_policy(
 }
 
 fn read(file: &[u8], task: Task, actor: &Mlp, fold: bool) -> Result<NormalisedActor, ImportError> {
-    let aligned = dex_runtime::testkit::aligned_copy(file);
+    let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = PolicyView::decode(aligned.as_bytes())?;
     view.check_layout(
         OBSERVATION_FIELDS.iter().map(|f| (f.name, f.size)),

@@ -353,7 +353,7 @@ fn export_int8(
     dex_trainer::atomic_write::write_atomic(out, &file)
         .with_context(|| format!("cannot write {}", out.display()))?;
     let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
-        let aligned = dex_runtime::testkit::aligned_copy(bytes);
+        let aligned = dex_runtime::aligned::aligned_copy(bytes);
         Ok(dex_policy::PolicyView::decode(aligned.as_bytes())?.weight_bytes())
     };
     println!(

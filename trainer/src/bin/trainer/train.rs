@@ -415,7 +415,7 @@ pub fn export_checkpoint(
 pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
     let bytes = std::fs::read(&args.policy)
         .with_context(|| format!("cannot read {}", args.policy.display()))?;
-    let aligned = dex_runtime::testkit::aligned_copy(&bytes);
+    let aligned = dex_runtime::aligned::aligned_copy(&bytes);
     let view = dex_policy::PolicyView::decode(aligned.as_bytes())
         .with_context(|| format!("{} is not a valid policy file", args.policy.display()))?;
     let own = TaskArg::from_policy(view.body().task);

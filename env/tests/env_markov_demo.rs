@@ -6,7 +6,7 @@
 
 use std::sync::OnceLock;
 
-use dex_trainer::env::{EnvConfig, JacoEnv, MarkovDemonstrator, MarkovPhase, Scene, Task};
+use dex_env::{EnvConfig, JacoEnv, MarkovDemonstrator, MarkovPhase, Scene, Task};
 
 fn scene() -> &'static Scene {
     static SCENE: OnceLock<Scene> = OnceLock::new();

@@ -1,18 +1,14 @@
 //! Instructive start states: the schemes hand over states the simulation reached, deterministically,
 //! and a held brick stays held after the hand-over (needs `scripts/setup-mujoco.sh` to have run).
+//! The schemes with the trainer's parts (the learner's adapter, an exported policy as demonstrator)
+//! are tested in `trainer/tests/learner_start_states.rs`.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::OnceLock;
 
+use dex_env::{Demonstrator, EnvConfig, JacoEnv, Scene, StartKind, StartScheme, StartStates, Task};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-use dex_trainer::env::Demonstration;
-use dex_trainer::env::{
-    Demonstrator, EnvConfig, JacoEnv, Scene, StartKind, StartScheme, StartStates, Task,
-};
-use dex_trainer::jaco::JacoLearnEnv;
-use dex_trainer::learn::{Env, Rng};
-use dex_trainer::policy_demo::PolicyDemonstration;
 
 fn scene() -> &'static Scene {
     static SCENE: OnceLock<Scene> = OnceLock::new();
@@ -66,7 +62,7 @@ fn scheme_settings_are_checked() {
         },
         StartScheme::AlongDemonstrations {
             train_episode_steps: 50,
-            demonstrations: dex_trainer::env::start_states::MAX_POOL + 1,
+            demonstrations: dex_env::start_states::MAX_POOL + 1,
         },
     ] {
         assert!(StartStates::scripted(bad, Task::Stack).is_err(), "{bad:?}");
@@ -175,7 +171,7 @@ fn states_along_demonstrations_are_the_demonstrators_states_and_held_bricks_stay
 /// the same state: what a resumed run sees), and draws its states from across the trajectories.
 #[test]
 fn a_demonstration_pool_hands_over_the_demonstrators_states_whatever_came_before() {
-    use dex_trainer::env::start_states::POOL_SEED_BASE;
+    use dex_env::start_states::POOL_SEED_BASE;
     let cfg = EnvConfig::new(Task::Stack);
     let mut env = JacoEnv::new(scene(), cfg);
     let pooled = StartScheme::AlongDemonstrations {
@@ -257,76 +253,4 @@ fn demonstration_states_with_the_brick_in_the_air_stay_held_after_a_hand_over() 
         assert_eq!(handed.steps_taken(), 0);
         assert_held(&mut handed, 10, &format!("demonstration step {k}"));
     }
-}
-
-#[test]
-fn learner_env_trains_short_episodes_from_demonstrations_and_evaluates_full_ones_from_original_starts()
- {
-    let cfg = EnvConfig::new(Task::Grasp);
-    let mut env =
-        JacoLearnEnv::with_starts(scene(), cfg, StartScheme::along_demonstrations()).unwrap();
-    let mut rng = Rng::seed_from_u64(3);
-    let mut obs = [0.0f32; OBS_DIM];
-    let run = |env: &mut JacoLearnEnv, obs: &mut [f32; OBS_DIM]| {
-        let mut steps = 0;
-        loop {
-            steps += 1;
-            if env.step(&[0.0; ACT_DIM], obs).done() {
-                return steps;
-            }
-        }
-    };
-    env.reset(&mut rng, &mut obs);
-    assert_eq!(run(&mut env, &mut obs), 50);
-    // Evaluation: original start (the same one a plain environment gives for the seed), 150 steps.
-    let mut probe = rng.clone();
-    let seed = probe.next_u64();
-    env.reset_eval(&mut rng, &mut obs);
-    let mut plain = JacoEnv::new(scene(), cfg);
-    assert_eq!(bits(&obs), bits(&plain.reset(seed).unwrap()));
-    assert_eq!(run(&mut env, &mut obs), 150);
-    env.reset(&mut rng, &mut obs);
-    assert_eq!(run(&mut env, &mut obs), 50);
-    assert_eq!(env.errors, 0);
-}
-
-#[test]
-fn an_exported_policy_can_demonstrate_and_bad_files_are_refused() {
-    // The trained Reach policy of the int8 tests: it solves most Reach starts in well under 50 steps.
-    let file = std::fs::read(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/reach_seed0.dxpl"),
-    )
-    .unwrap();
-    let policy = PolicyDemonstration::from_file_bytes(&file).unwrap();
-    let cfg = EnvConfig::new(Task::Reach);
-    let mut env = JacoEnv::new(scene(), cfg);
-    let mut starts = StartStates::new(StartScheme::along_demonstrations(), policy.clone()).unwrap();
-    let mut solved = 0;
-    for seed in 0..6 {
-        let h = starts.reset(&mut env, seed).unwrap();
-        let StartKind::Demonstration { k, n, solved: s } = h.kind else {
-            panic!("{:?}", h.kind)
-        };
-        assert!((1..=n).contains(&k) && n <= 50);
-        solved += usize::from(s);
-        // The hand-over is the state the policy reaches after k steps from the original start.
-        let mut replay = JacoEnv::new(scene(), cfg);
-        replay.reset(seed).unwrap();
-        let mut p = policy.clone();
-        for _ in 0..k {
-            let a = p.act(&replay).unwrap();
-            replay.step(&a).unwrap();
-        }
-        assert_eq!(
-            bits(replay.observation()),
-            bits(&h.observation),
-            "seed {seed}"
-        );
-    }
-    assert!(solved >= 3, "{solved}/6 demonstrations solved Reach");
-    let mut bad = file.clone();
-    let last = bad.len() - 1;
-    bad[last] ^= 1;
-    assert!(PolicyDemonstration::from_file_bytes(&bad).is_err());
-    assert!(PolicyDemonstration::from_file_bytes(&[]).is_err());
 }

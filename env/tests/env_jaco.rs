@@ -4,10 +4,10 @@
 
 use std::sync::OnceLock;
 
+use dex_env::observation::field_offset;
+use dex_env::rng::SeedRng;
+use dex_env::{Demonstrator, EnvConfig, EnvError, JacoEnv, Reward, Scene, Task};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
-use dex_trainer::env::observation::field_offset;
-use dex_trainer::env::rng::SeedRng;
-use dex_trainer::env::{Demonstrator, EnvConfig, EnvError, JacoEnv, Reward, Scene, Task};
 
 fn scene() -> &'static Scene {
     static SCENE: OnceLock<Scene> = OnceLock::new();
