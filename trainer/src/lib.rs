@@ -35,6 +35,7 @@ pub use dex_env as env;
 pub use dex_env::evaluate;
 pub mod export;
 pub mod imitation;
+pub mod int8_export;
 pub mod jaco;
 pub mod learn;
 pub mod plot;

@@ -215,3 +215,33 @@ fn trainer_eval_runs_int8_files_deterministically() {
     assert_eq!(a, b);
     assert_eq!(a.episodes, 4);
 }
+
+#[test]
+fn the_int8_export_step_reports_grid_error_and_its_own_success() {
+    let scene = Scene::load().unwrap();
+    let env = EnvConfig::new(Task::Reach);
+    let eval = EvalSettings {
+        env,
+        episodes: 8,
+        seed: EVAL_SEED,
+        threads: 1,
+        can_quantisation: true,
+        envelope: false,
+    };
+    // A quantisation-aware file: on the grid, quantised as it is, within 1% of the f32 actions.
+    let x = dex_trainer::int8_export::export_int8(TRAINED_FOR_INT8, &scene, env, &eval).unwrap();
+    assert!(x.on_grid && x.equalisation_change == 0.0);
+    assert!(!x.needs_aware_training(), "worst error {}", x.worst_error);
+    assert!(x.heldout > 0 && x.calibration > 0);
+    assert_eq!(x.eval.episodes, 8);
+    let aligned = aligned_copy(&x.file);
+    let view = PolicyView::decode(aligned.as_bytes()).unwrap();
+    assert!(view.layers().all(|l| l.dtype == LayerDtype::Int8));
+    let p = view.body().provenance;
+    assert_eq!(p.eval_episodes, 8);
+    assert_eq!(p.success_rate, Some(x.eval.success_rate() as f32));
+    // A file trained without quantisation is equalised first (its f32 function barely changes).
+    let y = dex_trainer::int8_export::export_int8(TRAINED, &scene, env, &eval).unwrap();
+    assert!(!y.on_grid);
+    assert!(y.equalisation_change < 1e-4, "{}", y.equalisation_change);
+}

@@ -289,58 +289,17 @@ struct ExportArgs {
 
 /// `trainer export --int8`: quantises the exported f32 file, evaluates the int8 file through the
 /// runtime (same episodes and start seeds as the f32 export's evaluation) and writes it with its own
-/// success rate.
+/// success rate (the steps: `dex_trainer::int8_export`).
 fn export_int8(
     f32_path: &std::path::Path,
     out: &std::path::Path,
     settings: &TrainSettings,
 ) -> anyhow::Result<()> {
-    use dex_trainer::evaluate::{
-        EvalSettings, action_error, evaluate_policy_file, heldout_observations_of_both,
-    };
-    use dex_trainer::export::{
-        calibration_observations, equalise_policy_file, quantise_policy_file,
-    };
-    /// Held-out episodes per policy of the reported action error.
-    const HELDOUT_EPISODES: u32 = 10;
     let f32_file =
         std::fs::read(f32_path).with_context(|| format!("cannot read {}", f32_path.display()))?;
     let scene = train::load_scene()?;
     let env = settings.reward.env_config(settings.task.task());
-    let calibration = calibration_observations(&f32_file, &scene, env)?;
-    // Equalised once; the draft (for the error and the evaluation) and the written file are
-    // quantisations of the same weights.
-    let eq = equalise_policy_file(&f32_file, &calibration)?;
-    if eq.on_grid {
-        println!(
-            "the f32 weights are on the int8 grid (quantisation-aware training): quantised as they are"
-        );
-    } else {
-        println!(
-            "equalised on {} calibration observations (f32 function change {:.2e} of a joint's range)",
-            calibration.len(),
-            eq.max_f32_change
-        );
-    }
-    let draft = quantise_policy_file(&eq.file, None)?;
-    // The int8 file's worst action error against the f32 file on held-out observations.
-    let heldout = heldout_observations_of_both(&f32_file, &draft, &scene, env, HELDOUT_EPISODES)?;
-    let worst = action_error(&f32_file, &draft, &heldout)?
-        .iter()
-        .copied()
-        .fold(0.0, f64::max);
-    println!(
-        "int8 against f32 on {} held-out observations: worst action error {:.3}% of a joint's range",
-        heldout.len(),
-        worst * 100.0
-    );
-    if worst > 0.01 {
-        println!(
-            "warning: over 1% - the policy was not trained for int8; train it with \
-             `--quantise-aware-from` (docs/training.md, \"Training for int8\")"
-        );
-    }
-    let eval_settings = EvalSettings {
+    let eval = dex_trainer::evaluate::EvalSettings {
         env,
         episodes: settings.final_eval_episodes,
         seed: EVAL_SEED,
@@ -348,9 +307,29 @@ fn export_int8(
         can_quantisation: true,
         envelope: false,
     };
-    let e = evaluate_policy_file(&draft, &scene, &eval_settings, &|| {})?;
-    let file = quantise_policy_file(&eq.file, Some((e.success_rate() as f32, e.episodes)))?;
-    dex_trainer::atomic_write::write_atomic(out, &file)
+    let x = dex_trainer::int8_export::export_int8(&f32_file, &scene, env, &eval)?;
+    if x.on_grid {
+        println!(
+            "the f32 weights are on the int8 grid (quantisation-aware training): quantised as they are"
+        );
+    } else {
+        println!(
+            "equalised on {} calibration observations (f32 function change {:.2e} of a joint's range)",
+            x.calibration, x.equalisation_change
+        );
+    }
+    println!(
+        "int8 against f32 on {} held-out observations: worst action error {:.3}% of a joint's range",
+        x.heldout,
+        x.worst_error * 100.0
+    );
+    if x.needs_aware_training() {
+        println!(
+            "warning: over 1% - the policy was not trained for int8; train it with \
+             `--quantise-aware-from` (docs/training.md, \"Training for int8\")"
+        );
+    }
+    dex_trainer::atomic_write::write_atomic(out, &x.file)
         .with_context(|| format!("cannot write {}", out.display()))?;
     let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
         let aligned = dex_runtime::aligned::aligned_copy(bytes);
@@ -359,10 +338,10 @@ fn export_int8(
     println!(
         "wrote {} (int8: {} weight bytes, f32 {}; {} bytes in all) - runtime evaluation {}",
         out.display(),
-        weight_bytes(&file)?,
+        weight_bytes(&x.file)?,
         weight_bytes(&f32_file)?,
-        file.len(),
-        train::describe(&e)
+        x.file.len(),
+        train::describe(&x.eval)
     );
     Ok(())
 }
