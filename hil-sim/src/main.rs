@@ -12,7 +12,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
 use dex_hil_sim::node::{TimeMode, spawn_controller_node};
-use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant, episode_seed};
+use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant};
 
 #[derive(Parser)]
 #[command(
@@ -300,25 +300,17 @@ fn run_command(args: &RunArgs) -> Result<()> {
     let result = (|| -> Result<(u32, f64)> {
         let mut node = PlantNode::connect(&bus, timing, 0x10)?;
         node.start_controller()?;
-        let mut successes = 0;
-        let mut total = 0.0;
-        for e in 0..args.episodes.episodes {
-            let r = node.episode(
-                plant.as_mut(),
-                episode_seed(args.episodes.seed, u64::from(e)),
-                u32::MAX,
-            )?;
-            println!(
-                "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
-                r.seed, r.episode_return, r.success, r.steps, r.steps_without_action
-            );
-            successes += u32::from(r.success);
-            total += r.episode_return;
-        }
+        let r = node.episodes(
+            plant.as_mut(),
+            args.episodes.episodes,
+            args.episodes.seed,
+            false,
+            &mut print_episode,
+        )?;
         if !node.emergencies().is_empty() {
             println!("emergencies: {:04X?}", node.emergencies());
         }
-        Ok((successes, total))
+        Ok((r.successes, r.total_return))
     })();
     stop.store(true, Ordering::SeqCst);
     let _ = node.join();
@@ -370,6 +362,14 @@ fn node_command(_iface: &str, _policy: Option<PathBuf>) -> Result<()> {
     )
 }
 
+/// One line per episode, as `trainer eval --actions` prints them.
+fn print_episode(e: u32, r: &dex_hil_sim::plant::EpisodeReport) {
+    println!(
+        "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
+        r.seed, r.episode_return, r.success, r.steps, r.steps_without_action
+    );
+}
+
 /// `hil-sim plant`: lockstep episodes against a controller on another process's bus.
 fn plant_command(addr: SocketAddr, ep: &EpisodeArgs, actions: Option<PathBuf>) -> Result<()> {
     let (episodes, seed) = (ep.episodes, ep.seed);
@@ -377,18 +377,12 @@ fn plant_command(addr: SocketAddr, ep: &EpisodeArgs, actions: Option<PathBuf>) -
     let mut node = PlantNode::connect_remote(addr, PlantTiming::Lockstep, 0x10)
         .with_context(|| format!("cannot reach the bus at {addr}"))?;
     node.start_controller()?;
+    let r = node.episodes(plant.as_mut(), episodes, seed, true, &mut print_episode)?;
+    let successes = r.successes;
     let mut lines = String::new();
-    let mut successes = 0u32;
-    for e in 0..episodes {
-        node.record = Some(Vec::new());
-        let r = node.episode(plant.as_mut(), episode_seed(seed, u64::from(e)), u32::MAX)?;
-        println!(
-            "episode {e} seed {} return {:.4} success {} steps {} steps_without_action {}",
-            r.seed, r.episode_return, r.success, r.steps, r.steps_without_action
-        );
-        successes += u32::from(r.success);
-        for (t, a) in node.record.take().unwrap_or_default().iter().enumerate() {
-            lines.push_str(&dex_runtime::testkit::action_line(u64::from(e), t, a));
+    for (e, actions) in r.actions.iter().enumerate() {
+        for (t, a) in actions.iter().enumerate() {
+            lines.push_str(&dex_runtime::testkit::action_line(e as u64, t, a));
         }
     }
     if !node.emergencies().is_empty() {

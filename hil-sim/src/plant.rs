@@ -232,6 +232,17 @@ pub struct EpisodeReport {
     pub steps_without_action: u32,
 }
 
+/// Outcome of a series of episodes over the bus ([`PlantNode::episodes`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EpisodesReport {
+    /// Episodes that ended in success.
+    pub successes: u32,
+    /// Sum of the episodes' returns.
+    pub total_return: f64,
+    /// Every applied command, per episode (empty unless recording was asked for).
+    pub actions: Vec<Vec<[f32; ACT_DIM]>>,
+}
+
 /// Assembles complete actions from E2E-checked action frames.
 #[derive(Debug, Clone)]
 pub struct ActionAssembler {
@@ -450,6 +461,32 @@ impl<'b> PlantNode<'b> {
             .queue(&nmt_frame(NmtCommand::Start, self.node_id));
         self.client.flush()?;
         self.wait_state(0x05, "operational")
+    }
+
+    /// Runs `episodes` episodes, episode `e` from `episode_seed(seed, e)` as `trainer eval` does,
+    /// calling `on_episode` after each; with `record` every applied command is kept.
+    pub fn episodes(
+        &mut self,
+        plant: &mut dyn Plant,
+        episodes: u32,
+        seed: u64,
+        record: bool,
+        on_episode: &mut dyn FnMut(u32, &EpisodeReport),
+    ) -> Result<EpisodesReport, PlantError> {
+        let mut out = EpisodesReport::default();
+        for e in 0..episodes {
+            if record {
+                self.record = Some(Vec::new());
+            }
+            let r = self.episode(plant, episode_seed(seed, u64::from(e)), u32::MAX)?;
+            on_episode(e, &r);
+            out.successes += u32::from(r.success);
+            out.total_return += r.episode_return;
+            if record {
+                out.actions.push(self.record.take().unwrap_or_default());
+            }
+        }
+        Ok(out)
     }
 
     /// Runs one episode from `seed`.
