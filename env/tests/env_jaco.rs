@@ -2,20 +2,13 @@
 
 #![allow(clippy::expect_used)]
 
-use std::sync::OnceLock;
+mod common;
+use common::scene;
 
 use dex_env::observation::field_offset;
 use dex_env::rng::SeedRng;
 use dex_env::{Demonstrator, EnvConfig, EnvError, JacoEnv, Reward, Scene, Task};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
-
-fn scene() -> &'static Scene {
-    static SCENE: OnceLock<Scene> = OnceLock::new();
-    SCENE.get_or_init(|| match Scene::load() {
-        Ok(s) => s,
-        Err(e) => panic!("{e}"),
-    })
-}
 
 fn random_actions(seed: u64, n: usize) -> Vec<[f32; ACT_DIM]> {
     let mut rng = SeedRng::new(seed);

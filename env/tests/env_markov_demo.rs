@@ -4,17 +4,10 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::sync::OnceLock;
+mod common;
+use common::scene;
 
-use dex_env::{EnvConfig, JacoEnv, MarkovDemonstrator, MarkovPhase, Scene, Task};
-
-fn scene() -> &'static Scene {
-    static SCENE: OnceLock<Scene> = OnceLock::new();
-    SCENE.get_or_init(|| match Scene::load() {
-        Ok(s) => s,
-        Err(e) => panic!("{e}"),
-    })
-}
+use dex_env::{EnvConfig, JacoEnv, MarkovDemonstrator, MarkovPhase, Task};
 
 fn successes(task: Task, episodes: u64) -> u64 {
     let mut env = JacoEnv::new(scene(), EnvConfig::new(task));

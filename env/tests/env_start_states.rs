@@ -5,22 +5,11 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::sync::OnceLock;
+mod common;
+use common::{bits, scene};
 
-use dex_env::{Demonstrator, EnvConfig, JacoEnv, Scene, StartKind, StartScheme, StartStates, Task};
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-
-fn scene() -> &'static Scene {
-    static SCENE: OnceLock<Scene> = OnceLock::new();
-    SCENE.get_or_init(|| match Scene::load() {
-        Ok(s) => s,
-        Err(e) => panic!("{e}"),
-    })
-}
-
-fn bits(o: &[f32; OBS_DIM]) -> Vec<u32> {
-    o.iter().map(|x| x.to_bits()).collect()
-}
+use dex_env::{Demonstrator, EnvConfig, JacoEnv, StartKind, StartScheme, StartStates, Task};
+use dex_runtime::interface::ACT_DIM;
 
 /// Arm still, fingers closing: what a policy that keeps its grip would command.
 const HOLD: [f32; ACT_DIM] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0];

@@ -4,19 +4,12 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::sync::OnceLock;
+mod common;
+use common::scene;
 
 use dex_trainer::demos::{DemoError, DemoSet, RecordSettings, record, record_with};
-use dex_trainer::env::{Demonstrator, Scene, Task};
+use dex_trainer::env::{Demonstrator, Task};
 use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
-
-fn scene() -> &'static Scene {
-    static SCENE: OnceLock<Scene> = OnceLock::new();
-    SCENE.get_or_init(|| match Scene::load() {
-        Ok(s) => s,
-        Err(e) => panic!("{e}"),
-    })
-}
 
 fn small(task: Task) -> DemoSet {
     let settings = RecordSettings {

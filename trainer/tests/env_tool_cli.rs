@@ -4,24 +4,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::process::{Command, Output};
-
-/// Runs `env-tool ARGS` to the end.
-fn env_tool(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_env-tool"))
-        .args(args)
-        .output()
-        .expect("run env-tool")
-}
-
-/// stdout and stderr together.
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+mod common;
+use common::{env_tool, text};
 
 /// A command-line error: exit 2 and an `error:` message naming `what` (with the usage line when
 /// `usage`; clap leaves it out for a bad value).

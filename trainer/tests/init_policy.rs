@@ -45,6 +45,17 @@ struct Exported {
     inv_std: Vec<f32>,
 }
 
+impl Exported {
+    /// What the file's network sees for the raw observation `x`: `(x - mean) * inv_std`.
+    fn normalise(&self, x: &[f32]) -> Vec<f32> {
+        x.iter()
+            .zip(&self.mean)
+            .zip(&self.inv_std)
+            .map(|((x, m), k)| (x - m) * k)
+            .collect()
+    }
+}
+
 fn export(t: &Trainer, task: Task, precision: Precision) -> Exported {
     let mut rng = Rng::seed_from_u64(5);
     let mean: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-1.0, 1.0)).collect();
@@ -88,12 +99,7 @@ fn an_imported_actor_computes_what_the_file_computes() {
     for _ in 0..200 {
         let x: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-2.0, 2.0)).collect();
         // The file: normalise, then the original network.
-        let z: Vec<f32> = x
-            .iter()
-            .zip(&e.mean)
-            .zip(&e.inv_std)
-            .map(|((x, m), k)| (x - m) * k)
-            .collect();
+        let z = e.normalise(&x);
         let (mut want, mut got, mut raw) = ([0.0; ACT_DIM], [0.0; ACT_DIM], [0.0; ACT_DIM]);
         original.act(&z, &mut want).unwrap();
         imported.act(&x, &mut got).unwrap();
@@ -142,12 +148,7 @@ fn a_normalised_import_keeps_the_files_normaliser_frozen_and_computes_the_same()
     let mut worst = 0.0f32;
     for _ in 0..200 {
         let x: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-2.0, 2.0)).collect();
-        let z: Vec<f32> = x
-            .iter()
-            .zip(&e.mean)
-            .zip(&e.inv_std)
-            .map(|((x, m), k)| (x - m) * k)
-            .collect();
+        let z = e.normalise(&x);
         let (mut want, mut got) = ([0.0; ACT_DIM], [0.0; ACT_DIM]);
         original.act(&z, &mut want).unwrap();
         t.act(&x, &mut got).unwrap();

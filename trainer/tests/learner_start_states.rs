@@ -5,27 +5,16 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::sync::OnceLock;
+mod common;
+use common::{bits, scene};
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::{
-    Demonstration, EnvConfig, JacoEnv, Scene, StartKind, StartScheme, StartStates, Task,
+    Demonstration, EnvConfig, JacoEnv, StartKind, StartScheme, StartStates, Task,
 };
 use dex_trainer::jaco::JacoLearnEnv;
 use dex_trainer::learn::{Env, Rng};
 use dex_trainer::policy_demo::PolicyDemonstration;
-
-fn scene() -> &'static Scene {
-    static SCENE: OnceLock<Scene> = OnceLock::new();
-    SCENE.get_or_init(|| match Scene::load() {
-        Ok(s) => s,
-        Err(e) => panic!("{e}"),
-    })
-}
-
-fn bits(o: &[f32; OBS_DIM]) -> Vec<u32> {
-    o.iter().map(|x| x.to_bits()).collect()
-}
 
 #[test]
 fn learner_env_trains_short_episodes_from_demonstrations_and_evaluates_full_ones_from_original_starts()

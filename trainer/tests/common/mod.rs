@@ -1,9 +1,14 @@
-//! Helpers shared by the tests that run the `trainer` binary (each test file uses some of them).
+//! Helpers shared by the trainer's integration tests (each test file uses some of them): running
+//! the `trainer` and `env-tool` binaries, temporary paths, the MuJoCo scene loaded once.
 
 #![allow(dead_code, clippy::expect_used)]
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use dex_runtime::interface::OBS_DIM;
+use dex_trainer::env::Scene;
 
 /// Runs `trainer ARGS` to the end and returns what it printed.
 pub fn trainer(args: &[&str]) -> Output {
@@ -11,6 +16,28 @@ pub fn trainer(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run trainer")
+}
+
+/// Runs `env-tool ARGS` to the end and returns what it printed.
+pub fn env_tool(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_env-tool"))
+        .args(args)
+        .output()
+        .expect("run env-tool")
+}
+
+/// The Jaco scene, loaded once per test process (needs `scripts/setup-mujoco.sh` to have run).
+pub fn scene() -> &'static Scene {
+    static SCENE: OnceLock<Scene> = OnceLock::new();
+    SCENE.get_or_init(|| match Scene::load() {
+        Ok(s) => s,
+        Err(e) => panic!("{e}"),
+    })
+}
+
+/// An observation's bits, for bit-for-bit comparisons.
+pub fn bits(o: &[f32; OBS_DIM]) -> Vec<u32> {
+    o.iter().map(|x| x.to_bits()).collect()
 }
 
 /// A command's stdout and stderr together, for assertions and failure messages.

@@ -131,14 +131,7 @@ pub(super) fn update(
     let t = cfg.ddpg.target;
     if !pretraining && u <= cfg.demos.pretrain_updates + cfg.critic_warmup_updates {
         // Critic warm-up: the actor stays as it started; the critic's target follows the critic.
-        for m in std::iter::once(&ctx.critic).chain(ctx.critic2.as_ref()) {
-            let mut guard = lock(m)?;
-            let c = &mut *guard;
-            if t.apply(u, &c.params, &mut c.target) {
-                c.target_version += 1;
-            }
-        }
-        return Ok(());
+        return move_critic_targets(ctx, t, u);
     }
     if !pretraining && !td3.actor_due(u) {
         return Ok(());
@@ -193,6 +186,15 @@ pub(super) fn update(
         local.actor.copy_from_slice(&a.params);
         local.versions[0] = a.version;
     }
+    move_critic_targets(ctx, t, u)
+}
+
+/// Moves the critics' targets (both, with TD3's twin) when `t` says so after update `u`.
+fn move_critic_targets(
+    ctx: &Ctx<'_>,
+    t: crate::learn::ddpg::TargetUpdate,
+    u: u64,
+) -> Result<(), LearnError> {
     for m in std::iter::once(&ctx.critic).chain(ctx.critic2.as_ref()) {
         let mut guard = lock(m)?;
         let c = &mut *guard;
