@@ -403,7 +403,7 @@ check_budget int8_stack_bytes "$int8_stack_max" "bytes of peak stack"
 # --- 7. a trained policy and its int8 twin ---------------------------------------------------------
 step "7/8 trained Reach policy (trained for int8) and its int8 twin on mps2-an386"
 TRAINED="$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl"
-(cd "$ROOT" && cargo run --quiet --locked -p dex-policy --features cli --bin policy -- \
+(cd "$ROOT" && cargo run --quiet --locked -p dex-policy-tool --bin policy -- \
     quantise "$TRAINED" "$WORK/trained_int8.dxpl" | sed 's/^/   /') || die "policy quantise failed"
 run_policy trained "$TRAINED" trained
 run_policy trained_int8 "$WORK/trained_int8.dxpl" trained_int8

@@ -15,7 +15,7 @@ if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
     || { echo "error: cannot install fonts-dejavu-core (needed for PNG plots)" >&2; exit 1; }
 fi
 bash scripts/setup-mujoco.sh
-cargo build --release --locked -p dex-trainer --bin trainer -p dex-policy --features dex-policy/cli --bin policy
+cargo build --release --locked -p dex-trainer --bin trainer -p dex-policy-tool --bin policy
 # Where cargo put them: CARGO_TARGET_DIR, build.target-dir or target/.
 BIN=$(cargo metadata --format-version 1 --no-deps |
   python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release

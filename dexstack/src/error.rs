@@ -79,6 +79,9 @@ pub enum Error {
         /// The task asked for.
         expected: String,
     },
+    /// An ONNX model that cannot be imported, or a policy file that cannot be exported.
+    #[error("{0}")]
+    Onnx(#[from] dex_policy_tool::OnnxError),
     /// The policy file could not be read.
     #[error("cannot read {path}: {source}")]
     Io {

@@ -13,6 +13,7 @@
 
 pub mod episode;
 pub mod error;
+pub mod onnx;
 pub mod policy;
 pub mod vector;
 
@@ -446,6 +447,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<VecEnv>()?;
     m.add_class::<Demonstrator>()?;
     m.add_class::<Policy>()?;
+    m.add_function(wrap_pyfunction!(onnx::onnx_to_policy, m)?)?;
+    m.add_function(wrap_pyfunction!(onnx::policy_to_onnx, m)?)?;
     m.add_function(wrap_pyfunction!(episode_seed, m)?)?;
     m.add_function(wrap_pyfunction!(reward_names, m)?)?;
     m.add_function(wrap_pyfunction!(default_reward, m)?)?;

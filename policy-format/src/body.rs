@@ -24,6 +24,26 @@ pub enum Task {
     Stack,
 }
 
+impl Task {
+    /// Every task, in the order of the paper's curriculum.
+    pub const ALL: [Task; 4] = [Task::Reach, Task::Grasp, Task::StackInHand, Task::Stack];
+
+    /// The task's name on command lines, in file metadata and in Python (`"stack-in-hand"`).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Task::Reach => "reach",
+            Task::Grasp => "grasp",
+            Task::StackInHand => "stack-in-hand",
+            Task::Stack => "stack",
+        }
+    }
+
+    /// The task called `name` ([`Task::name`]); `None` for any other string.
+    pub fn from_name(name: &str) -> Option<Task> {
+        Task::ALL.into_iter().find(|t| t.name() == name)
+    }
+}
+
 /// Activation applied to a layer's outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Activation {

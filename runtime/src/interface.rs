@@ -217,3 +217,32 @@ pub fn quantity_of(index: usize) -> Option<Quantity> {
     }
     None
 }
+
+/// The observation layout as a policy file lists it ([`dex_policy::Body::observation`]).
+pub fn policy_observation()
+-> heapless::Vec<dex_policy::ObsField<'static>, { dex_policy::MAX_OBS_FIELDS }> {
+    OBSERVATION_FIELDS
+        .iter()
+        .take(dex_policy::MAX_OBS_FIELDS)
+        .map(|f| dex_policy::ObsField {
+            name: f.name,
+            size: f.size as u16,
+        })
+        .collect()
+}
+
+/// The action layout, with the cell's scales and limits, as a policy file lists it
+/// ([`dex_policy::Body::action`]).
+pub fn policy_action()
+-> heapless::Vec<dex_policy::ActionJoint<'static>, { dex_policy::MAX_ACTIONS }> {
+    ACTION_JOINTS
+        .iter()
+        .take(dex_policy::MAX_ACTIONS)
+        .map(|j| dex_policy::ActionJoint {
+            name: j.name,
+            scale: j.scale,
+            min: j.min,
+            max: j.max,
+        })
+        .collect()
+}

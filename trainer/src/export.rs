@@ -1,8 +1,8 @@
 //! Writing a trained actor as a `dex-policy` file, the format the controller runs, in f32 or, after
 //! post-training quantisation, with int8 weights (format version 2).
 
-use dex_policy::{ActionJoint, Body, LayerSpec, ObsField, Provenance, encode_to_vec};
-use dex_runtime::interface::{ACTION_JOINTS, CONTROL_PERIOD_US, OBSERVATION_FIELDS};
+use dex_policy::{Body, LayerSpec, Provenance, encode_to_vec};
+use dex_runtime::interface::CONTROL_PERIOD_US;
 
 use crate::env::Task;
 use crate::learn::nets::{Activation, Mlp};
@@ -433,22 +433,8 @@ fn export_actor_clipped(
         values.extend_from_slice(l.weights);
         values.extend_from_slice(l.bias);
     }
-    let mut observation = heapless::Vec::new();
-    for f in OBSERVATION_FIELDS {
-        let _ = observation.push(ObsField {
-            name: f.name,
-            size: f.size as u16,
-        });
-    }
-    let mut action = heapless::Vec::new();
-    for j in ACTION_JOINTS {
-        let _ = action.push(ActionJoint {
-            name: j.name,
-            scale: j.scale,
-            min: j.min,
-            max: j.max,
-        });
-    }
+    let observation = dex_runtime::interface::policy_observation();
+    let action = dex_runtime::interface::policy_action();
     let body = Body {
         task: task_code(info.task),
         observation,

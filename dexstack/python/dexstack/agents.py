@@ -70,6 +70,7 @@ class Policy:
             with open(self.path, "rb") as f:
                 data = f.read()
         self._core = _core.Policy(data)
+        self._bytes = data
         self.can_quantisation = bool(can_quantisation)
         if task is not None and _task_name(task) != self._core.task:
             raise ValueError(f"the policy is a {self._core.task} policy, not a {_task_name(task)} one")
@@ -98,6 +99,56 @@ class Policy:
         """Header (version, flags, layout hash, CRC), layout (observation fields, action joints,
         layers), task and provenance of the file."""
         return self._core.info()
+
+    @classmethod
+    def from_onnx(cls, model: Union[str, os.PathLike, bytes], task: Optional[str] = None,
+                  layout: Union[str, os.PathLike, bytes, None] = None,
+                  can_quantisation: bool = True) -> "Policy":
+        """A policy from an ONNX model of an MLP actor (what ``torch.onnx.export`` writes), as
+        ``policy import`` makes it: Gemm/MatMul + Add layers with Relu or Tanh, input normalisation
+        and output scaling folded in, anything else refused with a ``ValueError`` naming the node.
+
+        Args:
+            model: a path to a ``.onnx`` file, or its bytes.
+            task: the task (``"grasp"``, ...); default: the layout file's, else the model's
+                ``dexstack.task`` metadata.
+            layout: a ``.dxpl`` file (path or bytes) whose layout to take instead of the cell's.
+            can_quantisation: as for ``Policy``.
+
+        A graph without output scaling gives actions in ``[-1, 1]``, the environments' action
+        space (a Stable-Baselines3 actor's ``tanh`` output): the cell's joint scales apply.
+        ``save`` writes the converted ``.dxpl`` for ``trainer eval`` and flashing.
+        """
+        data = _read_bytes(model)
+        layout_data = None if layout is None else _read_bytes(layout)
+        dxpl = _core.onnx_to_policy(data, None if task is None else _task_name(task), layout_data)
+        return cls(dxpl, can_quantisation=can_quantisation, task=task)
+
+    def to_onnx(self, path: Union[str, os.PathLike, None] = None) -> bytes:
+        """The ONNX model of this policy (``policy export-onnx``): normalisation, layers, joint
+        scaling and limits, opset 17; written to ``path`` when given. Its output is the joint
+        command (``act`` times each joint's scale)."""
+        onnx = _core.policy_to_onnx(self._bytes)
+        if path is not None:
+            with open(os.fspath(path), "wb") as f:
+                f.write(onnx)
+        return onnx
+
+    def save(self, path: Union[str, os.PathLike]) -> None:
+        """Writes the policy file (``.dxpl``) to ``path``."""
+        with open(os.fspath(path), "wb") as f:
+            f.write(self._bytes)
+
+    def to_bytes(self) -> bytes:
+        """The policy file's bytes."""
+        return self._bytes
+
+
+def _read_bytes(source) -> bytes:
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return bytes(source)
+    with open(os.fspath(source), "rb") as f:
+        return f.read()
 
 
 __all__ = ["Demonstrator", "Policy", "ACT_DIM"]

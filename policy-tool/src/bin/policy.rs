@@ -1,8 +1,10 @@
-//! `policy`: inspect, verify and quantise policy files.
+//! `policy`: inspect, verify, quantise and convert policy files.
 //!
 //! `policy inspect FILE` prints metadata, sizes and the checksum; `policy verify FILE` checks the file
 //! and exits non-zero with the reason when it is not valid; `policy quantise IN OUT` writes the int8
-//! twin of an f32 file (format version 2).
+//! twin of an f32 file (format version 2); `policy import MODEL.onnx --out FILE.dxpl --task T`
+//! turns an ONNX MLP (PyTorch, Stable-Baselines3) into a policy file; `policy export-onnx FILE.dxpl
+//! --out MODEL.onnx` writes a policy file as an ONNX model.
 
 use std::path::PathBuf;
 
@@ -14,7 +16,7 @@ use dex_policy::{Activation, LayerDtype, PolicyView};
 #[command(
     name = "policy",
     version,
-    about = "Inspect, verify and quantise dexterous-stack policy files"
+    about = "Inspect, verify, quantise and convert (ONNX) dexterous-stack policy files"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -45,6 +47,125 @@ enum Command {
         /// Output file.
         output: PathBuf,
     },
+    /// Write a policy file from an ONNX model of an MLP (what `torch.onnx.export` writes for a
+    /// PyTorch or Stable-Baselines3 actor): Gemm or MatMul + Add layers with Relu or Tanh, input
+    /// normalisation (Sub/Div/Mul/Add by constants, one symmetric Clip) and output scaling and
+    /// limits folded in; any other operator is refused by name. A graph without output scaling
+    /// gives actions in [-1, 1] (the dexstack action space), mapped by the layout's joint scales.
+    Import {
+        /// ONNX model (.onnx).
+        model: PathBuf,
+        /// Policy file to write (.dxpl); nothing is written when the model is refused.
+        #[arg(long)]
+        out: PathBuf,
+        /// Task of the policy (reach, grasp, stack-in-hand, stack); default: the layout file's,
+        /// else the model's `dexstack.task` metadata.
+        #[arg(long, value_parser = parse_task)]
+        task: Option<dex_policy::Task>,
+        /// Take the observation and action layout (and joint scales and limits) from this policy
+        /// file instead of the Jaco cell's.
+        #[arg(long)]
+        layout: Option<PathBuf>,
+    },
+    /// Write a policy file as an ONNX model (opset 17): normalisation, layers, joint scaling and
+    /// limits, the channel names in the graph's descriptions and metadata. int8 layers are written
+    /// as their dequantised f32 twin.
+    ExportOnnx {
+        /// Policy file (.dxpl).
+        file: PathBuf,
+        /// ONNX model to write (.onnx).
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+fn parse_task(name: &str) -> Result<dex_policy::Task, String> {
+    dex_policy::Task::from_name(name)
+        .ok_or_else(|| format!("unknown task {name:?} (reach, grasp, stack-in-hand, stack)"))
+}
+
+/// `policy import`.
+fn import(
+    model: &PathBuf,
+    out: &PathBuf,
+    task: Option<dex_policy::Task>,
+    layout: Option<&PathBuf>,
+) -> anyhow::Result<()> {
+    let bytes = read(model)?;
+    let layout_bytes = layout.map(read).transpose()?;
+    let layout_view = layout_bytes
+        .as_deref()
+        .map(PolicyView::decode)
+        .transpose()
+        .context("invalid layout file")?;
+    let settings = dex_policy_tool::ImportSettings {
+        task,
+        layout: layout_view.as_ref(),
+    };
+    let imported = dex_policy_tool::import_onnx(&bytes, &settings)
+        .with_context(|| format!("cannot import {}", model.display()))?;
+    std::fs::write(out, &imported.file)
+        .with_context(|| format!("cannot write {}", out.display()))?;
+    let view = PolicyView::decode(&imported.file).context("imported file")?;
+    let chain: Vec<String> = imported
+        .layers
+        .iter()
+        .map(|(_, o, a)| format!("{o} {}", activation(*a)))
+        .collect();
+    println!(
+        "wrote {} ({} policy, {} -> {}, {} bytes, crc32 {:#010x})",
+        out.display(),
+        imported.task.name(),
+        imported.layers.first().map_or(0, |l| l.0),
+        chain.join(" -> "),
+        imported.file.len(),
+        view.header().crc
+    );
+    println!(
+        "outputs: {}",
+        match imported.outputs {
+            dex_policy_tool::OutputUnits::Physical =>
+                "physical joint commands (the graph's output scaling and limits are the file's)",
+            dex_policy_tool::OutputUnits::Normalised =>
+                "normalised actions in [-1, 1] (the layout's joint scales and limits apply)",
+        }
+    );
+    if !imported.folded.is_empty() {
+        let folded: Vec<String> = imported
+            .folded
+            .iter()
+            .map(|(what, n)| format!("{n} x {what}"))
+            .collect();
+        println!("folded: {}", folded.join(", "));
+    }
+    println!(
+        "next: `trainer eval {}` measures it through the runtime",
+        out.display()
+    );
+    Ok(())
+}
+
+/// `policy export-onnx`.
+fn export_onnx(file: &PathBuf, out: &PathBuf) -> anyhow::Result<()> {
+    let bytes = read(file)?;
+    let view = PolicyView::decode(&bytes).context("invalid policy file")?;
+    let onnx = dex_policy_tool::export_onnx(&bytes)?;
+    std::fs::write(out, &onnx).with_context(|| format!("cannot write {}", out.display()))?;
+    println!(
+        "wrote {} (ONNX opset {}, {} bytes): observation [batch, {}] -> action [batch, {}]",
+        out.display(),
+        dex_policy_tool::onnx_export::OPSET,
+        onnx.len(),
+        view.body().obs_dim(),
+        view.body().act_dim()
+    );
+    if view.body().has_int8() {
+        println!(
+            "note: the int8 layers are written as their dequantised f32 twin; the controller's int8 \
+             kernel also rounds each layer's inputs to 16 bits, so its actions differ slightly"
+        );
+    }
+    Ok(())
 }
 
 fn read(path: &PathBuf) -> anyhow::Result<Vec<u8>> {
@@ -168,6 +289,13 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Inspect { file } => inspect(&read(&file)?),
         Command::Quantise { input, output } => quantise(&input, &output),
+        Command::Import {
+            model,
+            out,
+            task,
+            layout,
+        } => import(&model, &out, task, layout.as_ref()),
+        Command::ExportOnnx { file, out } => export_onnx(&file, &out),
         Command::Verify { file } => {
             let bytes = read(&file)?;
             match PolicyView::decode(&bytes) {

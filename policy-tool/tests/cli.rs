@@ -5,7 +5,10 @@
 use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_policy");
-const GOLDEN: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/golden/small.dxpl");
+const GOLDEN: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../policy-format/tests/golden/small.dxpl"
+);
 
 #[test]
 fn inspect_prints_metadata_sizes_and_checksum() {
