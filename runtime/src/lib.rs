@@ -10,6 +10,8 @@
 //!   activates it; roll-back to the previous policy, by request or after a faulty first evaluation.
 //! - [`can`] holds the frame type, AUTOSAR-E2E-profile-11-style protection and the cell's messages;
 //!   [`interface`] the observation and action layout they carry.
+//! - [`canopen`] holds the CiA 301 pieces of the controller as a device: the SDO server over an
+//!   object dictionary, with CiA 301 abort codes.
 //! - [`seeds`] holds [`seeds::episode_seed`], the start seed of each evaluation episode, shared by
 //!   every program that runs episodes.
 //! - [`aligned`] (`std` only) holds [`aligned::aligned_copy`], the 8-byte-aligned copy of a policy
@@ -27,6 +29,7 @@ extern crate std;
 #[cfg(feature = "std")]
 pub mod aligned;
 pub mod can;
+pub mod canopen;
 pub mod clock;
 pub mod controller;
 #[cfg(feature = "std")]
