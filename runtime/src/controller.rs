@@ -235,6 +235,8 @@ pub struct Controller<'p, const WIDTH: usize> {
     next_tick_us: Option<u64>,
     cycles_since_heartbeat: u32,
     announce: bool,
+    /// Program control asked to stop (0x1F51 = 0): leave operational at the next cycle.
+    stop_requested: bool,
     bus_off: bool,
     diag: Diagnostics,
     envelope: Envelope,
@@ -263,6 +265,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             next_tick_us: None,
             cycles_since_heartbeat: 0,
             announce: false,
+            stop_requested: false,
             bus_off: false,
             diag: Diagnostics::default(),
             envelope: Envelope::new(cfg.envelope, cfg.period_us),
@@ -556,6 +559,9 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.evaluations_this_cycle = 0;
 
         let heartbeats = self.heartbeat_counter;
+        if core::mem::take(&mut self.stop_requested) && self.state == State::Operational {
+            self.enter(State::PreOperational, &mut out);
+        }
         match self.state {
             State::Boot => self.boot_up(&mut out),
             State::Operational => {
@@ -838,3 +844,30 @@ fn policy_info_of(view: &PolicyView<'_>) -> PolicyInfo {
 
 /// Number of frames the plant sends per cycle.
 pub const OBS_FRAMES_PER_CYCLE: usize = OBS_FRAMES;
+
+/// The controller as the application of CiA 302-3 program download ([`crate::canopen::program`]).
+impl<const WIDTH: usize> crate::canopen::program::ProgramHost for Controller<'_, WIDTH> {
+    fn may_change_program(&self) -> bool {
+        self.state != State::Operational
+    }
+
+    fn accept(&self, view: &PolicyView<'_>, file: &[u8]) -> Result<(), LoadError> {
+        self.bind_slot(view, file).map(|_| ())
+    }
+
+    fn activate(&mut self, slots: &mut PolicySlots<'_>) -> Result<(), SlotError> {
+        self.activate_slot(slots)
+    }
+
+    fn roll_back(&mut self, slots: &mut PolicySlots<'_>) -> Result<(), SlotError> {
+        self.roll_back_slot(slots)
+    }
+
+    fn stop(&mut self) {
+        self.stop_requested = true;
+    }
+
+    fn running(&self) -> bool {
+        self.state == State::Operational
+    }
+}

@@ -445,6 +445,62 @@ impl<'r> PolicySlots<'r> {
         Ok(())
     }
 
+    /// Writes bytes `offset..offset + data.len()` of the file being received (a stream: `offset`
+    /// must be what was written so far). For transfers whose integrity the transport checks (the
+    /// SDO program download, [`crate::canopen::program`]); any error abandons the transfer.
+    pub fn write_at(&mut self, offset: usize, data: &[u8]) -> Result<(), FlashStatus> {
+        let i = self.inactive_index();
+        let Transfer::Receiving {
+            size,
+            written,
+            digest,
+            ..
+        } = &mut self.transfer
+        else {
+            return Err(FlashStatus::NoTransfer);
+        };
+        if offset != *written {
+            self.transfer = Transfer::Idle;
+            return Err(FlashStatus::Sequence);
+        }
+        let end = *written + data.len();
+        if end > *size {
+            self.transfer = Transfer::Idle;
+            return Err(FlashStatus::TooLarge);
+        }
+        self.regions[i][SLOT_HEADER_BYTES + *written..SLOT_HEADER_BYTES + end]
+            .copy_from_slice(data);
+        digest.update(data);
+        *written = end;
+        Ok(())
+    }
+
+    /// Ends a transfer written with [`PolicySlots::write_at`]: checks the length, decodes the file
+    /// (its own CRC-32 included) and asks `accept` (the controller's checks) about it, as
+    /// [`PolicySlots::end`] does without a transfer CRC. On success the file waits, verified, for
+    /// activation; any failure abandons the transfer.
+    pub fn finish(
+        &mut self,
+        accept: impl FnOnce(&PolicyView<'_>, &[u8]) -> Result<(), LoadError>,
+    ) -> Result<(), FlashStatus> {
+        let crc = match &self.transfer {
+            Transfer::Receiving { digest, .. } => digest.clone().finalize(),
+            _ => return Err(FlashStatus::NoTransfer),
+        };
+        self.end(crc, accept)
+    }
+
+    /// Discards a verified file waiting for activation (or a transfer under way): the inactive
+    /// slot keeps nothing to activate. The previous policy, if the slot still held one, is kept.
+    pub fn discard(&mut self) {
+        if !matches!(self.transfer, Transfer::Idle) {
+            let i = self.inactive_index();
+            invalidate(self.regions[i]);
+            self.files[i] = None;
+        }
+        self.transfer = Transfer::Idle;
+    }
+
     /// Abandons the transfer under way (the inactive slot stays invalid).
     pub fn abort(&mut self) {
         self.transfer = Transfer::Idle;

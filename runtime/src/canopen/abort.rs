@@ -52,6 +52,8 @@ pub enum SdoAbort {
     /// 0x0800_0022: ... because of the present device state (e.g. a program download while
     /// operational).
     DeviceState,
+    /// 0x0800_0024: no data available (start with no staged program, roll-back with no previous).
+    NoData,
 }
 
 impl SdoAbort {
@@ -81,6 +83,7 @@ impl SdoAbort {
             SdoAbort::CannotStore => 0x0800_0020,
             SdoAbort::LocalControl => 0x0800_0021,
             SdoAbort::DeviceState => 0x0800_0022,
+            SdoAbort::NoData => 0x0800_0024,
         }
     }
 
@@ -91,7 +94,7 @@ impl SdoAbort {
 }
 
 /// Every abort, for [`SdoAbort::from_code`].
-const ALL: [SdoAbort; 23] = [
+const ALL: [SdoAbort; 24] = [
     SdoAbort::ToggleBit,
     SdoAbort::Timeout,
     SdoAbort::UnknownCommand,
@@ -115,4 +118,5 @@ const ALL: [SdoAbort; 23] = [
     SdoAbort::CannotStore,
     SdoAbort::LocalControl,
     SdoAbort::DeviceState,
+    SdoAbort::NoData,
 ];
