@@ -3,7 +3,8 @@
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
 use crate::env::{
-    Demonstrator, EnvConfig, EnvError, JacoEnv, Observation, Scene, StartScheme, StartStates,
+    Demonstrator, EnvConfig, EnvError, JacoEnv, MarkovDemonstrator, Observation, Scene,
+    StartScheme, StartStates,
 };
 use crate::learn::{Env, Rng, Step};
 use crate::policy_demo::DemoSource;
@@ -29,6 +30,8 @@ pub struct JacoLearnEnv {
     pub errors: u64,
     /// The last error met, for reporting.
     pub last_error: Option<EnvError>,
+    /// The teacher of a run with teacher labels: the Markov demonstrator of the task.
+    teacher: MarkovDemonstrator,
 }
 
 impl JacoLearnEnv {
@@ -42,6 +45,7 @@ impl JacoLearnEnv {
             env: JacoEnv::new(scene, config),
             errors: 0,
             last_error: None,
+            teacher: MarkovDemonstrator::new(config.task),
         }
     }
 
@@ -126,6 +130,15 @@ impl Env for JacoLearnEnv {
         self.start(rng, obs, |env, starts, seed| {
             starts.reset(env, seed).map(|h| h.observation)
         });
+    }
+
+    /// The task's Markov demonstrator (its action is a function of the state alone: a label for
+    /// any state the learner visits).
+    fn expert_action(&mut self, action: &mut [f32]) -> bool {
+        let a = self.teacher.act(&self.env);
+        let n = action.len().min(ACT_DIM);
+        action[..n].copy_from_slice(&a[..n]);
+        true
     }
 
     fn reset_eval(&mut self, rng: &mut Rng, obs: &mut [f32]) {

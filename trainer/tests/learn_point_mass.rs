@@ -257,3 +257,91 @@ fn fixed_evaluation_starts_repeat_fresh_ones_do_not() {
     let fresh = returns(false);
     assert!(fresh.iter().any(|&r| r != fresh[0]), "{fresh:?}");
 }
+
+/// The point mass without a teacher: [`dex_trainer::learn::Env::expert_action`] says false.
+struct NoTeacher(PointMass);
+
+impl dex_trainer::learn::Env for NoTeacher {
+    fn obs_dim(&self) -> usize {
+        self.0.obs_dim()
+    }
+    fn act_dim(&self) -> usize {
+        self.0.act_dim()
+    }
+    fn reset(&mut self, rng: &mut dex_trainer::learn::Rng, obs: &mut [f32]) {
+        self.0.reset(rng, obs)
+    }
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> dex_trainer::learn::Step {
+        self.0.step(action, obs)
+    }
+}
+
+#[test]
+fn teacher_labels_hold_the_actor_to_the_teacher_on_its_own_states_and_resume() {
+    use dex_trainer::learn::Env;
+    let mut cfg = small_config(11);
+    cfg.teacher_labels = true;
+    cfg.demos.bc_weight = 5.0;
+    // A critic that knows nothing yet: the cloning term toward the labels must carry the actor.
+    let stop = AtomicBool::new(false);
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    let s = t.run(env, 1_500, &stop, &mut quiet).expect("run");
+    let best = s.records.iter().map(|r| r.success_rate).fold(0.0, f64::max);
+    // The actor's action on fresh states points where the teacher's does.
+    let mut probe = PointMass::new(PointMassConfig::default());
+    let mut rng = dex_trainer::learn::Rng::seed_from_u64(5);
+    let (mut obs, mut teacher) = ([0.0f32; 6], [0.0f32; 2]);
+    let mut agree = 0;
+    for _ in 0..200 {
+        probe.reset(&mut rng, &mut obs);
+        assert!(probe.expert_action(&mut teacher));
+        let mut a = [0.0f32; 2];
+        t.act(&obs, &mut a).expect("act");
+        agree += usize::from(a[0] * teacher[0] + a[1] * teacher[1] > 0.0);
+    }
+    assert!(
+        agree >= 190,
+        "actor agrees with the teacher on {agree}/200 states"
+    );
+    assert!(best >= 0.9, "best success with teacher labels {best}");
+
+    // The labels go through a checkpoint: a resumed run equals an uninterrupted one.
+    let whole = {
+        let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+        t.run(env, 1_200, &stop, &mut quiet).expect("run");
+        params_bits(&t)
+    };
+    let dir = std::env::temp_dir().join(format!("dex-learn-labels-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("tmp dir");
+    let path = dir.join("ckpt.bin");
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    t.run(env, 600, &stop, &mut quiet).expect("first chunk");
+    t.save(&path).expect("save");
+    let mut resumed = Trainer::load(&path).expect("load");
+    resumed
+        .run(env, 1_200, &stop, &mut quiet)
+        .expect("second chunk");
+    assert!(
+        params_bits(&resumed) == whole,
+        "resumed labelled run differs"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // Refused: labels with n-step returns or without a cloning weight; an env with no teacher.
+    let mut bad = cfg.clone();
+    bad.n_step = 3;
+    assert!(Trainer::new(bad, 6, 2).is_err());
+    let mut bad = cfg.clone();
+    bad.demos.bc_weight = 0.0;
+    assert!(Trainer::new(bad, 6, 2).is_err());
+    let mut t = Trainer::new(cfg, 6, 2).expect("trainer");
+    let err = t
+        .run(
+            |_| NoTeacher(PointMass::new(PointMassConfig::default())),
+            100,
+            &stop,
+            &mut quiet,
+        )
+        .expect_err("no teacher");
+    assert!(err.to_string().contains("no teacher"), "{err}");
+}

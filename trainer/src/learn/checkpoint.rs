@@ -76,6 +76,11 @@ impl Enc {
             let per_row = f.len() / r.capacity();
             self.f32s(&f[..len * per_row]);
         }
+        // A labelling run's labels (the configuration says whether a buffer has them).
+        if let Some(l) = r.labels() {
+            let per_row = l.len() / r.capacity();
+            self.f32s(&l[..len * per_row]);
+        }
     }
 }
 
@@ -168,7 +173,19 @@ impl Dec<'_> {
             v.resize(cap * pr, 0.0);
             *f = v;
         }
-        if r.restore(next, len, fields) {
+        let labels = match r.labels().map(|l| l.len() / cap) {
+            Some(pr) => {
+                let mut v = self.f32s()?;
+                if v.len() != len.saturating_mul(pr) {
+                    return Err(LearnError::BadCheckpoint("replay labels do not match"));
+                }
+                v.resize(cap * pr, 0.0);
+                Some(v)
+            }
+            None => None,
+        };
+        let restored = r.restore(next, len, fields) && labels.is_none_or(|l| r.restore_labels(l));
+        if restored {
             Ok(())
         } else {
             Err(LearnError::BadCheckpoint(

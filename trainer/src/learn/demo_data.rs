@@ -65,6 +65,12 @@ impl DemoDataConfig {
 
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), LearnError> {
+        self.validate_with(false)
+    }
+
+    /// [`DemoDataConfig::validate`] for a run whose replay rows carry teacher labels
+    /// (`teacher_labels`): then the cloning term has targets without demonstration rows.
+    pub fn validate_with(&self, teacher_labels: bool) -> Result<(), LearnError> {
         let bad = |field, why| Err(LearnError::Config { field, why });
         if !(0.0..=1.0).contains(&self.fraction) {
             return bad("demos.fraction", "must be in [0, 1]");
@@ -87,10 +93,11 @@ impl DemoDataConfig {
                 "pre-training needs the demonstration buffer (demos.fraction > 0)",
             );
         }
-        if self.bc_weight > 0.0 && self.fraction == 0.0 {
+        if self.bc_weight > 0.0 && self.fraction == 0.0 && !teacher_labels {
             return bad(
                 "demos.bc_weight",
-                "a cloning term needs demonstration rows in the batch (demos.fraction > 0)",
+                "a cloning term needs demonstration rows in the batch (demos.fraction > 0) or \
+                 teacher labels",
             );
         }
         Ok(())

@@ -36,6 +36,14 @@ pub trait Env {
     fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]);
     /// Applies `action` (each component in `[-1, 1]`); writes the next observation.
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
+    /// Writes the teacher's action at the current state into `action` and returns true; false
+    /// (the default) for an environment without a teacher. Used by runs with
+    /// [`crate::learn::RunConfig::teacher_labels`].
+    fn expert_action(&mut self, action: &mut [f32]) -> bool {
+        let _ = action;
+        false
+    }
+
     /// Starts an evaluation episode. Environments whose training episodes start elsewhere (instructive
     /// start states) or run shorter override this so that evaluation keeps the task's own starts and
     /// length; by default it is [`Env::reset`].
@@ -56,6 +64,9 @@ impl<E: Env + ?Sized> Env for Box<E> {
     }
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
         (**self).step(action, obs)
+    }
+    fn expert_action(&mut self, action: &mut [f32]) -> bool {
+        (**self).expert_action(action)
     }
     fn reset_eval(&mut self, rng: &mut Rng, obs: &mut [f32]) {
         (**self).reset_eval(rng, obs)
@@ -161,6 +172,14 @@ impl Env for PointMass {
             truncated: self.t >= self.cfg.episode_steps,
             success: inside,
         }
+    }
+
+    /// The teacher: straight at the goal, as fast as the action allows.
+    fn expert_action(&mut self, action: &mut [f32]) -> bool {
+        for (k, a) in action.iter_mut().take(2).enumerate() {
+            *a = ((self.goal[k] - self.pos[k]) / self.cfg.max_speed).clamp(-1.0, 1.0);
+        }
+        true
     }
 }
 

@@ -61,6 +61,9 @@ pub struct Replay {
     reward: Vec<f32>,
     next_obs: Vec<f32>,
     not_done: Vec<f32>,
+    /// The teacher's action at each stored observation (`capacity x act_dim`), when the run
+    /// labels its transitions ([`Replay::with_labels`]): the cloning target of every row.
+    labels: Option<Vec<f32>>,
 }
 
 impl Replay {
@@ -78,7 +81,21 @@ impl Replay {
             reward: vec![0.0; capacity],
             next_obs: vec![0.0; capacity * obs_dim],
             not_done: vec![0.0; capacity],
+            labels: None,
         }
+    }
+
+    /// The buffer stores a label (the teacher's action) with every transition, and sampled rows
+    /// carry it as their cloning target ([`Batch::bc_target`], all rows counted in
+    /// [`Batch::demo_rows`]).
+    pub fn with_labels(mut self) -> Self {
+        self.labels = Some(vec![0.0; self.capacity * self.act_dim]);
+        self
+    }
+
+    /// Whether the buffer stores labels.
+    pub fn has_labels(&self) -> bool {
+        self.labels.is_some()
     }
 
     /// Transitions stored.
@@ -130,8 +147,30 @@ impl Replay {
         copy_row(&mut self.next_obs, i, self.obs_dim, next_obs);
         self.reward[i] = reward;
         self.not_done[i] = not_done;
+        if let Some(l) = &mut self.labels {
+            // Unlabelled pushes (not made by a labelling run) clone the action taken.
+            copy_row(l, i, self.act_dim, act);
+        }
         self.next = (i + 1) % self.capacity;
         self.len = (self.len + 1).min(self.capacity);
+    }
+
+    /// [`Replay::push_discounted`] with the teacher's action `label` at `obs` (ignored by a buffer
+    /// without labels).
+    pub fn push_labelled(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        reward: f32,
+        next_obs: &[f32],
+        not_done: f32,
+        label: &[f32],
+    ) {
+        let i = self.next;
+        self.push_discounted(obs, act, reward, next_obs, not_done);
+        if let Some(l) = &mut self.labels {
+            copy_row(l, i, self.act_dim, label);
+        }
     }
 
     /// Fills `batch` with `n` transitions drawn uniformly with replacement (`n` is capped by the batch's
@@ -153,8 +192,15 @@ impl Replay {
         for r in from..end {
             let i = rng.below(self.len);
             self.copy_row_into(i, batch, r);
+            if let Some(l) = &self.labels {
+                let a = self.act_dim;
+                batch.bc_target[r * a..(r + 1) * a].copy_from_slice(&l[i * a..(i + 1) * a]);
+            }
         }
         batch.len = end;
+        if self.labels.is_some() {
+            batch.demo_rows = end;
+        }
     }
 
     /// The stored observations (before each step), row-major, oldest slot first.
@@ -186,6 +232,23 @@ impl Replay {
                 &self.not_done,
             ],
         )
+    }
+
+    /// The stored labels (`None` without), all slots.
+    pub(crate) fn labels(&self) -> Option<&[f32]> {
+        self.labels.as_deref()
+    }
+
+    /// Restores labels written from [`Replay::labels`]; false without labels or when the size
+    /// does not match.
+    pub(crate) fn restore_labels(&mut self, labels: Vec<f32>) -> bool {
+        match &mut self.labels {
+            Some(l) if l.len() == labels.len() => {
+                *l = labels;
+                true
+            }
+            _ => false,
+        }
     }
 
     /// Restores contents written by [`Replay::raw`]; false if the sizes do not match this buffer.
@@ -243,5 +306,29 @@ mod tests {
         let empty = Replay::new(4, 1, 1);
         empty.sample(&mut Rng::seed_from_u64(0), 4, &mut b);
         assert_eq!(b.len, 0);
+    }
+
+    #[test]
+    fn labels_follow_their_rows_through_the_ring_and_fill_every_cloning_target() {
+        let mut r = Replay::new(3, 1, 2).with_labels();
+        for i in 0..7 {
+            let v = i as f32;
+            r.push_labelled(&[v], &[v, v], 0.0, &[v], 1.0, &[10.0 * v, -v]);
+        }
+        let mut b = Batch::new(32, 1, 2);
+        b.demo_rows = 4;
+        r.sample_after(&mut Rng::seed_from_u64(1), 4, 28, &mut b);
+        assert_eq!((b.len, b.demo_rows), (32, 32));
+        for k in 4..32 {
+            let v = b.obs[k];
+            assert!(v >= 4.0);
+            assert_eq!(b.bc_target[2 * k..2 * k + 2], [10.0 * v, -v]);
+        }
+        // Without labels nothing changes: the demonstration rows stay the only cloned ones.
+        let plain = Replay::new(3, 1, 2);
+        let mut b = Batch::new(8, 1, 2);
+        b.demo_rows = 2;
+        plain.sample_after(&mut Rng::seed_from_u64(1), 2, 6, &mut b);
+        assert_eq!(b.demo_rows, 2);
     }
 }

@@ -225,6 +225,10 @@ struct TrainArgs {
     /// moves: the critic rates the starting policy's own transitions first.
     #[arg(long)]
     critic_warmup_updates: Option<u64>,
+    /// Store the teacher's (Markov demonstrator's) action with every collected transition and
+    /// apply the cloning term (--bc-weight) to every batch row toward it (run.teacher_labels).
+    #[arg(long)]
+    teacher_labels: bool,
 }
 
 #[derive(Args, Debug)]

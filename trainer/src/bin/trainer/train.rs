@@ -52,6 +52,7 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.q_normalisation.is_some()
         || a.init_policy.is_some()
         || a.critic_warmup_updates.is_some()
+        || a.teacher_labels
 }
 
 pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
@@ -173,6 +174,9 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if let Some(n) = a.critic_warmup_updates {
         s.run.critic_warmup_updates = n;
+    }
+    if a.teacher_labels {
+        s.run.teacher_labels = true;
     }
     if let Some(n) = a.pretrain_updates {
         s.run.demos.pretrain_updates = n;

@@ -87,6 +87,14 @@ pub struct RunConfig {
     /// critic (and move its target) but leave the actor as it started, so the critic has rated
     /// the starting policy's own transitions before it moves that policy. 0: off.
     pub critic_warmup_updates: u64,
+    /// Teacher labels (beyond the paper; DAgger's relabelling inside the RL loop): every
+    /// transition a worker collects is stored with the teacher's action at its observation
+    /// ([`crate::learn::env::Env::expert_action`]: for the Jaco tasks the Markov demonstrator, a
+    /// function of the state), and the cloning term (`demos.bc_weight`) applies to every row of
+    /// every batch with that label as its target: the actor is held to the teacher on the states
+    /// it visits itself, not only on the teacher's own, while the critic's gradient moves it
+    /// where the return says the teacher is wrong. Needs `n_step = 1` and `demos.bc_weight > 0`.
+    pub teacher_labels: bool,
     /// Seed of everything random in the run.
     pub seed: u64,
 }
@@ -116,6 +124,7 @@ impl Default for RunConfig {
             n_step: 1,
             demos: DemoDataConfig::default(),
             critic_warmup_updates: 0,
+            teacher_labels: false,
             seed: 0,
         }
     }
@@ -148,9 +157,21 @@ impl RunConfig {
         }
         self.noise.validate(None)?;
         self.td3.validate()?;
-        self.demos.validate()?;
+        self.demos.validate_with(self.teacher_labels)?;
         if self.n_step == 0 || self.n_step > 100 {
             return bad("n_step", "must be in 1..=100");
+        }
+        if self.teacher_labels && self.n_step != 1 {
+            return bad(
+                "teacher_labels",
+                "needs n_step = 1 (a label is the teacher's action at the row's own observation)",
+            );
+        }
+        if self.teacher_labels && self.demos.bc_weight <= 0.0 {
+            return bad(
+                "teacher_labels",
+                "needs demos.bc_weight > 0 (the labels are the cloning term's targets)",
+            );
         }
         if self.obs_norm.frozen_from_demos && !(self.obs_norm.enabled && self.demos.uses_demos()) {
             return bad(

@@ -116,10 +116,17 @@ impl Trainer {
             ..SharedState::default()
         };
         let w = cfg.workers;
+        let labelled = |r: Replay| {
+            if cfg.teacher_labels {
+                r.with_labels()
+            } else {
+                r
+            }
+        };
         let shared_replay = cfg
             .replay
             .shared
-            .then(|| Replay::new(cfg.replay.capacity, obs_dim, act_dim));
+            .then(|| labelled(Replay::new(cfg.replay.capacity, obs_dim, act_dim)));
         let workers = (0..w)
             .map(|i| WorkerState {
                 rng: Rng::derive(cfg.seed, STREAM_WORKER + i as u64),
@@ -131,7 +138,7 @@ impl Trainer {
                     0
                 }),
                 replay: (!cfg.replay.shared)
-                    .then(|| Replay::new(cfg.replay.capacity / w, obs_dim, act_dim)),
+                    .then(|| labelled(Replay::new(cfg.replay.capacity / w, obs_dim, act_dim))),
                 transitions: 0,
             })
             .collect();

@@ -115,6 +115,7 @@ pub(super) fn worker_loop<E: Env>(
     let mut obs = vec![0.0f32; od];
     let mut next_obs = vec![0.0f32; od];
     let mut action = vec![0.0f32; ad];
+    let mut label = vec![0.0f32; ad];
     let mut obs_n = vec![0.0f32; od];
     let mut eval_scratch = nets.actor.scratch(1);
     let norm_on = cfg.obs_norm.enabled;
@@ -153,6 +154,11 @@ pub(super) fn worker_loop<E: Env>(
             .actor
             .forward(params, &obs_n, 1, &mut local.act_scratch)?;
         noise.perturb(&mut ws.rng, mean, &mut action);
+        if cfg.teacher_labels && !env.expert_action(&mut label) {
+            return Err(LearnError::Worker(
+                "teacher_labels: the environment has no teacher",
+            ));
+        }
         let step = env.step(&action, &mut next_obs);
         observe(&next_obs, &mut local.norm)?;
         ep_steps += 1;
@@ -165,8 +171,9 @@ pub(super) fn worker_loop<E: Env>(
             (None, Some(r)) => r,
             (None, None) => return Err(LearnError::Worker("no replay buffer")),
         };
+        // With teacher labels n_step is 1, so the row pushed is this step's (`label` is its).
         pending.push(&obs, &action, step.reward, step.terminal, done, |t| {
-            replay.push_discounted(t.obs, t.act, t.reward, &next_obs, t.not_done);
+            replay.push_labelled(t.obs, t.act, t.reward, &next_obs, t.not_done, &label);
         });
         let stored = replay.len();
         drop(guard);
