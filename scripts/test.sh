@@ -22,6 +22,21 @@ if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
     || { echo "error: cannot install fonts-dejavu-core (apt-get; needs root)" >&2; exit 1; }
 fi
 
+step "Debian packages (Mesa's EGL and OSMesa for the dexstack renderer)"
+# render_mode="rgb_array" and `python -m dexstack.render` draw with the mujoco wheel's offscreen
+# renderer, headless through EGL (MUJOCO_GL=egl, the package's default without a display) or OSMesa;
+# without a GPU, Mesa's llvmpipe software rasteriser draws (tests/test_dexstack_render.py).
+render_pkgs="libegl1 libegl-mesa0 libgl1 libopengl0 libgl1-mesa-dri libosmesa6"
+missing=$(for p in $render_pkgs; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || echo "$p"
+done)
+if [ -n "$missing" ]; then
+  # shellcheck disable=SC2086
+  { apt-get install -y --no-install-recommends $missing >/dev/null 2>&1 \
+    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends $missing >/dev/null; }; } \
+    || { echo "error: cannot install $(echo $missing) (apt-get; needs root)" >&2; exit 1; }
+fi
+
 step "Debian packages (Open MPI and libclang for the trainer's mpi feature)"
 # `--all-features` builds the trainer's `mpi` feature (the mpi crate's bindings need libclang)
 # and trainer/tests/distributed.rs runs mpirun.

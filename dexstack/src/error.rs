@@ -82,6 +82,9 @@ pub enum Error {
     /// An ONNX model that cannot be imported, or a policy file that cannot be exported.
     #[error("{0}")]
     Onnx(#[from] dex_policy_tool::OnnxError),
+    /// The renderer's part on the Rust side failed (saving the scene's binary model).
+    #[error("{0}")]
+    Render(String),
     /// The policy file could not be read.
     #[error("cannot read {path}: {source}")]
     Io {
@@ -98,7 +101,7 @@ impl Error {
     pub fn is_bad_input(&self) -> bool {
         !matches!(
             self,
-            Error::Env(_) | Error::Io { .. } | Error::ResetNeeded(_)
+            Error::Env(_) | Error::Io { .. } | Error::ResetNeeded(_) | Error::Render(_)
         )
     }
 }
@@ -113,7 +116,9 @@ impl From<Error> for PyErr {
             Error::Io { .. } => PyOSError::new_err(text),
             Error::Env(EnvError::AssetsMissing { .. }) => PyOSError::new_err(text),
             Error::Env(EnvError::NonFiniteAction { .. }) => PyValueError::new_err(text),
-            Error::Env(_) | Error::ResetNeeded(_) => PyRuntimeError::new_err(text),
+            Error::Env(_) | Error::ResetNeeded(_) | Error::Render(_) => {
+                PyRuntimeError::new_err(text)
+            }
             _ => PyValueError::new_err(text),
         }
     }

@@ -5,6 +5,9 @@
 //! - [`VecEnv`]: N environments stepped on Rust threads with the GIL released ([`vector::Batch`]).
 //! - [`Demonstrator`]: the scripted (or Markov) demonstrator acting on an [`Env`].
 //! - [`Policy`]: a `.dxpl` file run through the runtime's evaluator ([`policy::LoadedPolicy`]).
+//! - For the renderer ([`render`]): `scene_mjb()` (the compiled scene as MuJoCo's binary model),
+//!   `camera_names()`, and `render_state()` of an [`Env`] or of one environment of a [`VecEnv`]
+//!   (its MuJoCo state, copied only when Python draws a frame).
 //!
 //! Arrays cross the boundary as native-endian float32 bytes (the Python side checks dtype and
 //! shape with numpy first; the Rust side checks sizes and finiteness again and refuses before
@@ -15,10 +18,13 @@ pub mod episode;
 pub mod error;
 pub mod onnx;
 pub mod policy;
+pub mod render;
 pub mod vector;
 
 use dex_env::{MarkovDemonstrator, Reward, StartKind, Task};
-use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
+use dex_runtime::interface::{
+    ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS,
+};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
@@ -144,6 +150,11 @@ impl Env {
         to_bytes(py, self.episode.env().observation())
     }
 
+    /// The MuJoCo state (float64 bytes in the `STATE_SPEC` layout) for the renderer.
+    fn render_state<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &render::state_bytes(self.episode.env()))
+    }
+
     /// Control steps taken in the episode.
     #[getter]
     fn steps_taken(&self) -> u32 {
@@ -255,6 +266,19 @@ impl VecEnv {
     #[getter]
     fn threads(&self) -> usize {
         self.batch.threads()
+    }
+
+    /// The MuJoCo state of environment `index` (float64 bytes in the `STATE_SPEC` layout) for the
+    /// renderer.
+    fn render_state<'py>(&self, py: Python<'py>, index: usize) -> PyResult<Bound<'py, PyBytes>> {
+        let envs = self.batch.envs();
+        let episode = envs.get(index).ok_or_else(|| {
+            Error::BadOption(format!(
+                "environment index {index} is out of range (num_envs = {})",
+                envs.len()
+            ))
+        })?;
+        Ok(PyBytes::new(py, &render::state_bytes(episode.env())))
     }
 }
 
@@ -440,6 +464,19 @@ fn action_joints() -> Vec<(String, f32)> {
         .collect()
 }
 
+/// The scene's compiled model as MuJoCo's binary model file (MJB bytes), for the renderer.
+#[pyfunction]
+fn scene_mjb<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+    let bytes = py.detach(render::scene_mjb)?;
+    Ok(PyBytes::new(py, &bytes))
+}
+
+/// The names of the scene's cameras, in id order.
+#[pyfunction]
+fn camera_names() -> PyResult<Vec<String>> {
+    Ok(render::camera_names()?)
+}
+
 /// The extension module.
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -455,7 +492,13 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(default_episode_steps, m)?)?;
     m.add_function(wrap_pyfunction!(observation_fields, m)?)?;
     m.add_function(wrap_pyfunction!(action_joints, m)?)?;
+    m.add_function(wrap_pyfunction!(scene_mjb, m)?)?;
+    m.add_function(wrap_pyfunction!(camera_names, m)?)?;
     m.add("OBS_DIM", OBS_DIM)?;
     m.add("ACT_DIM", ACT_DIM)?;
+    m.add("CONTROL_PERIOD_US", CONTROL_PERIOD_US)?;
+    m.add("STATE_SPEC", render::STATE_SPEC)?;
+    m.add("EVAL_SEED", dex_env::seeds::EVAL_SEED)?;
+    m.add("MUJOCO_VERSION", render::mujoco_version())?;
     Ok(())
 }

@@ -9,7 +9,9 @@ Importing the package registers four Gymnasium 1.x ids::
 stepped on Rust threads with the GIL released). The simulation is the Rust ``JacoEnv`` itself
 (MuJoCo 3.17.0), so the same seed and the same actions give the same bits as in Rust.
 :class:`Demonstrator` is the scripted demonstrator, :class:`Policy` a ``.dxpl`` policy file run
-through the runtime's evaluator. See docs/python.md.
+through the runtime's evaluator. ``render_mode="rgb_array"`` (or ``"human"`` on a display) draws
+the environment's own MuJoCo state with MuJoCo's renderer (:mod:`dexstack.renderer`);
+``python -m dexstack.render POLICY.dxpl`` writes a video of a policy file. See docs/python.md.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from . import _core
 from ._core import episode_seed, reward_names
 from .envs import TASKS, InvalidAction, JacoEnv, VectorEnv
 from .agents import Demonstrator, Policy
+from .renderer import RenderError, RendererUnavailable
 
 __all__ = [
     "TASKS",
@@ -28,6 +31,8 @@ __all__ = [
     "InvalidAction",
     "Demonstrator",
     "Policy",
+    "RenderError",
+    "RendererUnavailable",
     "episode_seed",
     "reward_names",
     "register_envs",
@@ -44,7 +49,8 @@ def register_envs() -> None:
             continue
         gymnasium.register(
             id=env_id,
-            entry_point="dexstack.envs:JacoEnv",
+            # A function, not the class: see `envs.make_env` (render_mode="human" without a display).
+            entry_point="dexstack.envs:make_env",
             vector_entry_point="dexstack.envs:VectorEnv",
             kwargs={"task": task},
             # The environment truncates at its own time limit (the `episode_steps` option), so no

@@ -12,6 +12,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from . import _core
+from . import renderer as _renderer
 
 #: The Gymnasium id stem of each task and the task name the Rust side takes.
 TASKS = {
@@ -105,6 +106,9 @@ def _draw_seed(rng: np.random.Generator) -> int:
     return int(rng.integers(0, _U64, dtype=np.uint64))
 
 
+_RENDER_BEFORE_RESET = "render() before reset(): there is no state to draw yet; call reset() first"
+
+
 def _predicates(success: bool, reach: bool, grasp: bool, stack: bool) -> dict:
     return {"success": bool(success), "reach": bool(reach), "grasp": bool(grasp), "stack": bool(stack)}
 
@@ -122,7 +126,13 @@ class JacoEnv(gymnasium.Env):
         episode_steps: control steps (50 ms each) before ``truncated``; default 150 (Reach 50), 50
             under ``along-demonstrations``.
         in_hand_probability: the in-hand share under ``mixture``.
-        render_mode: only ``None`` (no rendering).
+        render_mode: ``None`` (no rendering: no renderer is made, no state copied), ``rgb_array``
+            (``render()`` returns the frame, ``(height, width, 3)`` uint8, drawn by MuJoCo's offscreen
+            renderer from this environment's own MuJoCo state) or ``human`` (a MuJoCo viewer window
+            paced at 20 frames/s; where a display exists, else ``RendererUnavailable``).
+        camera: ``front`` (the scene's camera, close on the bricks), ``overview``, ``side`` or ``top``
+            (``dexstack.renderer.camera_names()``).
+        width, height: the image size in pixels (1 to 4096; default 480 x 480).
 
     Observations are 44 float32 (``dex_runtime::interface``), actions 9 float32 in [-1, 1]
     (clipped, then scaled to the joints' velocity commands). ``terminated`` is always False,
@@ -132,9 +142,13 @@ class JacoEnv(gymnasium.Env):
     Seeding: ``reset(seed=s)`` seeds ``self.np_random`` (Gymnasium's rules); each reset draws the
     episode's 64-bit seed from it, and the Rust start state comes from that seed alone
     (``reset(options={"episode_seed": k})`` gives the start of ``JacoEnv::reset(k)`` directly).
+
+    Rendering (docs/python.md): ``render()`` before ``reset()`` raises ``gymnasium.error.ResetNeeded``;
+    a missing ``mujoco`` wheel or OpenGL backend ``dexstack.RendererUnavailable`` (at the first
+    ``render()``); the environment stays usable either way. ``close()`` frees the renderer.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": _renderer.render_modes(), "render_fps": _renderer.RENDER_FPS}
 
     def __init__(
         self,
@@ -144,9 +158,15 @@ class JacoEnv(gymnasium.Env):
         episode_steps: Optional[int] = None,
         in_hand_probability: float = 0.5,
         render_mode: Optional[str] = None,
+        camera: str = _renderer.DEFAULT_CAMERA,
+        width: int = _renderer.DEFAULT_SIZE,
+        height: int = _renderer.DEFAULT_SIZE,
     ):
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not supported (dexstack does not render)")
+        # Checked before anything is made; nothing of the renderer is imported or created here.
+        self.render_mode = _renderer.check_render_mode(render_mode)
+        self._render_options = _renderer.check_options(camera, width, height)
+        self._renderer: Optional[_renderer.Renderer] = None
+        self._viewer: Optional[_renderer.Viewer] = None
         if episode_steps is not None and (
             isinstance(episode_steps, bool) or not isinstance(episode_steps, (int, np.integer)) or episode_steps < 1
         ):
@@ -155,7 +175,6 @@ class JacoEnv(gymnasium.Env):
             _task_name(task), reward, start, None if episode_steps is None else int(episode_steps),
             float(in_hand_probability),
         )
-        self.render_mode = None
         self.observation_space = _observation_space()
         self.action_space = _action_space()
         self._running = False
@@ -212,6 +231,52 @@ class JacoEnv(gymnasium.Env):
             _predicates(success, reach, grasp, stack),
         )
 
+    @property
+    def steps_taken(self) -> int:
+        """Control steps taken in the current episode."""
+        return self._core.steps_taken
+
+    def render(self):
+        """The current state drawn by MuJoCo's renderer: an ``(height, width, 3)`` uint8 frame
+        (``rgb_array``), or ``None`` after showing it in the viewer window (``human``). Without a
+        render mode: a warning and ``None``. Works after the time limit too (the last state)."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() without a render mode: make the environment with render_mode='rgb_array', e.g. "
+                'gymnasium.make("dexstack/Stack-v0", render_mode="rgb_array")'
+            )
+            return None
+        if not self._reset_once:
+            raise gymnasium.error.ResetNeeded(_RENDER_BEFORE_RESET)
+        if self.render_mode == "human":
+            if self._viewer is None:
+                self._viewer = _renderer.Viewer()
+            self._viewer.show(self._core.render_state())
+            return None
+        if self._renderer is None:
+            self._renderer = _renderer.Renderer(**self._render_options)
+        return self._renderer.draw(self._core.render_state())
+
+    def close(self):
+        """Frees the renderer or closes the viewer window, if any (the environment itself needs no
+        closing)."""
+        r, self._renderer = self._renderer, None
+        v, self._viewer = self._viewer, None
+        if r is not None:
+            r.close()
+        if v is not None:
+            v.close()
+        super().close()
+
+
+def make_env(**kwargs) -> JacoEnv:
+    """The registered ids' entry point: ``JacoEnv(**kwargs)``.
+
+    A function rather than the class so that ``gymnasium.make(id, render_mode="human")`` reaches
+    :class:`JacoEnv` (a clear error without a display) instead of Gymnasium swapping in its pygame
+    ``HumanRendering`` wrapper for a mode the class's ``metadata`` does not list."""
+    return JacoEnv(**kwargs)
+
 
 class VectorEnv(gymnasium.vector.VectorEnv):
     """``num_envs`` Jaco environments stepped on Rust threads with the GIL released.
@@ -222,9 +287,17 @@ class VectorEnv(gymnasium.vector.VectorEnv):
     autoreset is ``AutoresetMode.NEXT_STEP`` (the step after an episode ends resets that
     environment, ignores its action and returns reward 0, ``truncated`` False and the reset info).
     Infos are batched the Gymnasium way (``info["success"]`` with the mask ``info["_success"]``).
+
+    ``render_mode="rgb_array"`` (with ``camera``, ``width``, ``height`` as for :class:`JacoEnv`):
+    ``render()`` returns a tuple of ``num_envs`` frames, environment ``i``'s state drawn by one
+    shared renderer, Gymnasium's vector convention (``SyncVectorEnv.render``).
     """
 
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata = {
+        "render_modes": ["rgb_array"],
+        "render_fps": _renderer.RENDER_FPS,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
 
     def __init__(
         self,
@@ -236,9 +309,14 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         in_hand_probability: float = 0.5,
         threads: int = 0,
         render_mode: Optional[str] = None,
+        camera: str = _renderer.DEFAULT_CAMERA,
+        width: int = _renderer.DEFAULT_SIZE,
+        height: int = _renderer.DEFAULT_SIZE,
     ):
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not supported (dexstack does not render)")
+        self.render_mode = _renderer.check_render_mode(render_mode, vector=True)
+        self._render_options = _renderer.check_options(camera, width, height)
+        self._renderer: Optional[_renderer.Renderer] = None
+        self._reset_once = False
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, not {num_envs!r}")
         if episode_steps is not None and (
@@ -252,7 +330,6 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             None if episode_steps is None else int(episode_steps), float(in_hand_probability), int(threads),
         )
         self.num_envs = int(num_envs)
-        self.render_mode = None
         self.single_observation_space = _observation_space()
         self.single_action_space = _action_space()
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -309,6 +386,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         (obs, _, _, success, reach, grasp, stack), starts = self._core.step(self._zeros, episode_seeds)
         self._running[:] = True
         self._autoreset[:] = False
+        self._reset_once = True
         infos: dict = {}
         for i in range(self.num_envs):
             info = {"episode_seed": np.uint64(episode_seeds[i]), **starts[i],
@@ -347,3 +425,22 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             truncated,
             infos,
         )
+
+    def render(self):
+        """One frame per environment (``rgb_array``): a tuple of ``num_envs`` ``(height, width, 3)``
+        uint8 arrays. Without a render mode: a warning and ``None``."""
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() without a render mode: make the vector environment with render_mode='rgb_array'")
+            return None
+        if not self._reset_once:
+            raise gymnasium.error.ResetNeeded(_RENDER_BEFORE_RESET)
+        if self._renderer is None:
+            self._renderer = _renderer.Renderer(**self._render_options)
+        return tuple(self._renderer.draw(self._core.render_state(i)) for i in range(self.num_envs))
+
+    def close_extras(self, **kwargs):
+        """Frees the renderer, if any."""
+        r, self._renderer = self._renderer, None
+        if r is not None:
+            r.close()
