@@ -87,3 +87,27 @@ fn an_exported_policy_can_demonstrate_and_bad_files_are_refused() {
     assert!(PolicyDemonstration::from_file_bytes(&bad).is_err());
     assert!(PolicyDemonstration::from_file_bytes(&[]).is_err());
 }
+
+#[test]
+fn the_teacher_labels_of_the_jaco_env_are_the_markov_demonstrators_actions() {
+    // Following the labels is following the teacher: it stacks (the labels come from the state
+    // the step will act on, not from the one before).
+    let mut env = JacoLearnEnv::new(scene(), EnvConfig::new(Task::Stack));
+    let mut rng = Rng::seed_from_u64(4);
+    let mut obs = [0.0f32; OBS_DIM];
+    let mut label = [0.0f32; ACT_DIM];
+    let mut successes = 0;
+    for _ in 0..5 {
+        env.reset_eval(&mut rng, &mut obs);
+        loop {
+            assert!(env.expert_action(&mut label));
+            assert!(label.iter().all(|a| a.is_finite() && a.abs() <= 1.0));
+            let step = env.step(&label, &mut obs);
+            if step.done() {
+                successes += usize::from(step.success);
+                break;
+            }
+        }
+    }
+    assert!(successes >= 4, "the teacher's labels stacked {successes}/5");
+}
