@@ -871,3 +871,29 @@ impl<const WIDTH: usize> crate::canopen::program::ProgramHost for Controller<'_,
         self.state == State::Operational
     }
 }
+
+/// The controller as the application behind the communication objects
+/// ([`crate::canopen::device`]).
+impl<const WIDTH: usize> crate::canopen::device::DeviceHost for Controller<'_, WIDTH> {
+    /// Bit 0 (generic) while a fault is latched, bit 4 (communication) for a watchdog timeout or
+    /// bus-off, bit 7 (manufacturer-specific) for the other faults.
+    fn error_register(&self) -> u8 {
+        match self.fault {
+            FaultCode::None | FaultCode::EnvelopeSustained => 0,
+            FaultCode::ObservationTimeout | FaultCode::BusOff => 0x01 | 0x10,
+            _ => 0x01 | 0x80,
+        }
+    }
+
+    fn active_policy(&self) -> Option<crate::canopen::device::ActivePolicy> {
+        self.info.map(|i| crate::canopen::device::ActivePolicy {
+            layout_hash: i.layout_hash,
+            format_version: i.format_version,
+            task: i.task,
+        })
+    }
+
+    fn envelope_status(&self) -> u8 {
+        self.envelope.status()
+    }
+}

@@ -5,6 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use dex_runtime::can::messages::{NmtCommand, nmt_frame};
+use dex_runtime::canopen::device::{DeviceObjects, DeviceState, Identity};
 use dex_runtime::canopen::program::{
     FLASH_STATUS, FlashResult, PROGRAM_CONTROL, PROGRAM_DATA, PROGRAM_ID, ProgramObjects,
     ProgramState, control,
@@ -253,4 +254,77 @@ fn a_download_cut_in_the_middle_keeps_the_old_policy_and_reports_it() {
     assert_eq!(n.read_u32(PROGRAM_ID), CRC32.checksum(&file));
     let r = n.write_u8(PROGRAM_CONTROL, control::START);
     assert_eq!(abort_code(&r), Some(0x0800_0024));
+}
+
+#[test]
+fn the_communication_objects_read_and_write_through_the_same_server() {
+    let (mut ra, mut rb) = regions();
+    let mut n = node(bytes(&mut ra), bytes(&mut rb));
+    let mut device = DeviceState::new(
+        Identity {
+            serial: 0x1234,
+            ..Identity::default()
+        },
+        500,
+    );
+    let file = jaco_policy(&[64], 7).unwrap();
+    let mut serve = |n: &mut Node<'_>, device: &mut DeviceState, f: SdoFrame| {
+        let program = ProgramObjects {
+            slots: &mut n.slots,
+            host: &mut n.ctl,
+            state: &mut n.program,
+        };
+        let mut od = DeviceObjects::new(device, program);
+        n.sdo.on_request(&f, 0, &mut od).unwrap()
+    };
+    let read = |n: &mut Node<'_>, device: &mut DeviceState, index: u16, sub: u8| {
+        let r = serve(
+            n,
+            device,
+            req(&[0x40, index as u8, (index >> 8) as u8, sub]),
+        );
+        assert_eq!(r[0] & 0xF3, 0x43, "{index:#06x}:{sub}: {r:02x?}");
+        u32::from_le_bytes([r[4], r[5], r[6], r[7]])
+    };
+    assert_eq!(read(&mut n, &mut device, 0x1000, 0), 0);
+    assert_eq!(read(&mut n, &mut device, 0x1018, 0), 4);
+    assert_eq!(
+        read(&mut n, &mut device, 0x1018, 2),
+        Identity::default().product
+    );
+    assert_eq!(read(&mut n, &mut device, 0x1018, 4), 0x1234);
+    assert_eq!(read(&mut n, &mut device, 0x1017, 0), 500);
+    assert_eq!(read(&mut n, &mut device, 0x1001, 0), 0);
+    // Program download goes through the same dictionary.
+    n.download(&file);
+    n.write_u8(PROGRAM_CONTROL, control::START);
+    assert_eq!(read(&mut n, &mut device, 0x2000, 3), CRC32.checksum(&file));
+    assert_eq!(
+        read(&mut n, &mut device, 0x2000, 5),
+        1,
+        "first slot generation"
+    );
+    // Heartbeat time and error behaviour are writable; identity is not.
+    let r = serve(&mut n, &mut device, req(&[0x2B, 0x17, 0x10, 0, 0xE8, 0x03]));
+    assert_eq!(r[0], 0x60);
+    assert_eq!(device.heartbeat_ms, 1000);
+    let r = serve(&mut n, &mut device, req(&[0x2F, 0x29, 0x10, 1, 3]));
+    assert_eq!(abort_code(&r), Some(0x0609_0031));
+    let r = serve(&mut n, &mut device, req(&[0x23, 0x18, 0x10, 4, 1, 0, 0, 0]));
+    assert_eq!(abort_code(&r), Some(0x0601_0002));
+    // The error history: newest first, cleared by writing 0 to sub-index 0.
+    device.record_emergency(0x8250, 1);
+    device.record_emergency(0xFF02, 2);
+    assert_eq!(read(&mut n, &mut device, 0x1003, 0), 2);
+    assert_eq!(read(&mut n, &mut device, 0x1003, 1), 0x0002_FF02);
+    assert_eq!(read(&mut n, &mut device, 0x1003, 2), 0x0001_8250);
+    let r = serve(&mut n, &mut device, req(&[0x40, 0x03, 0x10, 3]));
+    assert_eq!(abort_code(&r), Some(0x0800_0024));
+    let r = serve(&mut n, &mut device, req(&[0x2F, 0x03, 0x10, 0, 0]));
+    assert_eq!(r[0], 0x60);
+    assert_eq!(read(&mut n, &mut device, 0x1003, 0), 0);
+    let r = serve(&mut n, &mut device, req(&[0x40, 0x00, 0x30, 0]));
+    assert_eq!(abort_code(&r), Some(0x0602_0000));
+    let r = serve(&mut n, &mut device, req(&[0x40, 0x18, 0x10, 9]));
+    assert_eq!(abort_code(&r), Some(0x0609_0011));
 }

@@ -1,10 +1,11 @@
 //! CANopen (CiA 301) building blocks of the controller as a device: the object dictionary as the
 //! SDO server sees it ([`od`]), the SDO server itself ([`sdo`]: expedited, segmented and block
-//! transfers), program download onto the policy slots (CiA 302-3: [`program`]) and the abort codes
+//! transfers), the communication and manufacturer objects ([`device`]), program download onto the policy slots (CiA 302-3: [`program`]) and the abort codes
 //! every refusal is answered with ([`abort`]). No heap: a transfer
 //! streams into the dictionary, which decides where the bytes go (a policy slot for program data).
 
 pub mod abort;
+pub mod device;
 pub mod od;
 pub mod program;
 pub mod sdo;

@@ -1,0 +1,268 @@
+//! The controller's communication and manufacturer objects (CiA 301), and the whole dictionary
+//! the SDO server serves: these objects, then program download ([`super::program`]).
+//!
+//! | index | sub | object | type | access |
+//! |---|---|---|---|---|
+//! | 0x1000 | 0 | device type (no CiA device profile: 0) | u32 | ro |
+//! | 0x1001 | 0 | error register (bit 0 generic, bit 4 communication, bit 7 manufacturer) | u8 | ro |
+//! | 0x1003 | 0 | pre-defined error field: number of errors (write 0 to clear) | u8 | rw |
+//! | 0x1003 | 1..=8 | the emergency codes sent, newest first (code u16, fault code in bits 16-23) | u32 | ro |
+//! | 0x1017 | 0 | producer heartbeat time, ms | u16 | rw |
+//! | 0x1018 | 0..=4 | identity: 4, vendor id, product code, revision, serial number | u8, u32 | ro |
+//! | 0x1029 | 0..=1 | error behaviour: 1; communication error (0 pre-operational, 1 no change, 2 stopped) | u8 | ro, rw |
+//! | 0x2000 | 0..=5 | active policy: 5; layout hash u32, format version u16, file CRC u32, task u8, slot generation u32 | | ro |
+//! | 0x2001 | 0 | safety envelope status (the envelope's status byte) | u8 | ro |
+//!
+//! Values the controller owns (its state, its policy, the envelope) are read through
+//! [`DeviceHost`]; what the dictionary owns (heartbeat time, error history, error behaviour) is in
+//! [`DeviceState`].
+
+use super::abort::SdoAbort;
+use super::od::{Access, Entry, ObjectDictionary};
+use super::program::{ProgramHost, ProgramObjects, is_program_object};
+
+/// Most emergency codes kept in 0x1003.
+pub const ERROR_HISTORY: usize = 8;
+
+/// The identity the node reports in 0x1018.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Identity {
+    /// Vendor id (CiA-assigned; 0 for none).
+    pub vendor: u32,
+    /// Product code.
+    pub product: u32,
+    /// Revision number (major in the high 16 bits, minor in the low).
+    pub revision: u32,
+    /// Serial number.
+    pub serial: u32,
+}
+
+impl Default for Identity {
+    fn default() -> Self {
+        Identity {
+            vendor: 0,
+            product: 0x4458_4A43, // "DXJC"
+            revision: 0x0001_0000,
+            serial: 0,
+        }
+    }
+}
+
+/// What the controller knows of its active policy (0x2000; the file's CRC and slot generation
+/// come from the slots).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ActivePolicy {
+    /// Layout hash of the file.
+    pub layout_hash: u32,
+    /// Format version.
+    pub format_version: u16,
+    /// Task code (order of `dex_policy::Task`).
+    pub task: u8,
+}
+
+/// What the communication objects read from the controller.
+pub trait DeviceHost {
+    /// The error register (0x1001).
+    fn error_register(&self) -> u8;
+    /// The active policy, if any.
+    fn active_policy(&self) -> Option<ActivePolicy>;
+    /// The safety envelope's status byte.
+    fn envelope_status(&self) -> u8;
+}
+
+/// What the dictionary keeps between requests.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DeviceState {
+    /// Identity (0x1018).
+    pub identity: Identity,
+    /// Producer heartbeat time in ms (0x1017; 0: no heartbeat).
+    pub heartbeat_ms: u16,
+    /// Communication error behaviour (0x1029:1).
+    pub error_behaviour: u8,
+    history: heapless::Deque<u32, ERROR_HISTORY>,
+}
+
+impl DeviceState {
+    /// A state with `identity`, a heartbeat every `heartbeat_ms`, errors leading to
+    /// pre-operational.
+    pub fn new(identity: Identity, heartbeat_ms: u16) -> Self {
+        DeviceState {
+            identity,
+            heartbeat_ms,
+            error_behaviour: 0,
+            history: heapless::Deque::new(),
+        }
+    }
+
+    /// Records an emergency sent (newest first in 0x1003; the oldest is dropped when full).
+    pub fn record_emergency(&mut self, code: u16, fault: u8) {
+        if self.history.is_full() {
+            let _ = self.history.pop_back();
+        }
+        let _ = self
+            .history
+            .push_front(u32::from(code) | (u32::from(fault) << 16));
+    }
+
+    /// The recorded emergencies, newest first.
+    pub fn errors(&self) -> impl Iterator<Item = u32> + '_ {
+        self.history.iter().copied()
+    }
+}
+
+/// The node's whole dictionary for one SDO request: the communication and manufacturer objects,
+/// then program download.
+pub struct DeviceObjects<'a, 'r, H: DeviceHost + ProgramHost> {
+    /// What the dictionary keeps.
+    pub state: &'a mut DeviceState,
+    /// Program download over the slots and the controller.
+    pub program: ProgramObjects<'a, 'r, H>,
+    /// A pending 1-2 byte write (heartbeat time, error behaviour, error history), applied at its end.
+    pending: [u8; 2],
+}
+
+impl<'a, 'r, H: DeviceHost + ProgramHost> DeviceObjects<'a, 'r, H> {
+    /// The dictionary over `state` and `program`.
+    pub fn new(state: &'a mut DeviceState, program: ProgramObjects<'a, 'r, H>) -> Self {
+        DeviceObjects {
+            state,
+            program,
+            pending: [0; 2],
+        }
+    }
+
+    fn host(&self) -> &H {
+        &*self.program.host
+    }
+
+    /// The value of a basic object as little-endian bytes and its length.
+    fn value(&self, index: u16, sub: u8) -> Result<([u8; 4], usize), SdoAbort> {
+        let u32v = |v: u32| Ok((v.to_le_bytes(), 4));
+        let u16v = |v: u16| Ok(([v.to_le_bytes()[0], v.to_le_bytes()[1], 0, 0], 2));
+        let u8v = |v: u8| Ok(([v, 0, 0, 0], 1));
+        let id = &self.state.identity;
+        let policy = self.host().active_policy().unwrap_or_default();
+        match (index, sub) {
+            (0x1000, 0) => u32v(0),
+            (0x1001, 0) => u8v(self.host().error_register()),
+            (0x1003, 0) => u8v(self.state.history.len() as u8),
+            (0x1003, s) if usize::from(s) <= ERROR_HISTORY => {
+                match self.state.errors().nth(usize::from(s) - 1) {
+                    Some(v) => u32v(v),
+                    None => Err(SdoAbort::NoData),
+                }
+            }
+            (0x1017, 0) => u16v(self.state.heartbeat_ms),
+            (0x1018, 0) => u8v(4),
+            (0x1018, 1) => u32v(id.vendor),
+            (0x1018, 2) => u32v(id.product),
+            (0x1018, 3) => u32v(id.revision),
+            (0x1018, 4) => u32v(id.serial),
+            (0x1029, 0) => u8v(1),
+            (0x1029, 1) => u8v(self.state.error_behaviour),
+            (0x2000, 0) => u8v(5),
+            (0x2000, 1) => u32v(policy.layout_hash),
+            (0x2000, 2) => u16v(policy.format_version),
+            (0x2000, 3) => u32v(self.program.slots.active_crc()),
+            (0x2000, 4) => u8v(policy.task),
+            (0x2000, 5) => u32v(self.program.slots.active().map_or(0, |f| f.generation)),
+            (0x2001, 0) => u8v(self.host().envelope_status()),
+            (0x1000 | 0x1001 | 0x1003 | 0x1017 | 0x1018 | 0x1029 | 0x2000 | 0x2001, _) => {
+                Err(SdoAbort::NoSubIndex)
+            }
+            _ => Err(SdoAbort::NoObject),
+        }
+    }
+
+    fn writable(index: u16, sub: u8) -> bool {
+        matches!((index, sub), (0x1003, 0) | (0x1017, 0) | (0x1029, 1))
+    }
+}
+
+impl<H: DeviceHost + ProgramHost> ObjectDictionary for DeviceObjects<'_, '_, H> {
+    fn entry(&self, index: u16, sub: u8) -> Result<Entry, SdoAbort> {
+        if is_program_object(index) {
+            return self.program.entry(index, sub);
+        }
+        let (_, len) = match self.value(index, sub) {
+            // An empty slot of the error history still exists (it reads as "no data").
+            Err(SdoAbort::NoData) => ([0; 4], 4),
+            other => other?,
+        };
+        Ok(Entry {
+            access: if Self::writable(index, sub) {
+                Access::ReadWrite
+            } else {
+                Access::ReadOnly
+            },
+            size: Some(len as u32),
+            exact: true,
+        })
+    }
+
+    fn read(
+        &mut self,
+        index: u16,
+        sub: u8,
+        offset: u32,
+        buf: &mut [u8],
+    ) -> Result<usize, SdoAbort> {
+        if is_program_object(index) {
+            return self.program.read(index, sub, offset, buf);
+        }
+        let (bytes, len) = self.value(index, sub)?;
+        let rest = bytes.get(offset as usize..len).unwrap_or(&[]);
+        let n = rest.len().min(buf.len());
+        buf[..n].copy_from_slice(&rest[..n]);
+        Ok(n)
+    }
+
+    fn begin_write(&mut self, index: u16, sub: u8, size: Option<u32>) -> Result<(), SdoAbort> {
+        if is_program_object(index) {
+            return self.program.begin_write(index, sub, size);
+        }
+        self.pending = [0; 2];
+        Ok(())
+    }
+
+    fn write(&mut self, index: u16, sub: u8, offset: u32, data: &[u8]) -> Result<(), SdoAbort> {
+        if is_program_object(index) {
+            return self.program.write(index, sub, offset, data);
+        }
+        for (k, b) in data.iter().enumerate() {
+            if let Some(slot) = self.pending.get_mut(offset as usize + k) {
+                *slot = *b;
+            }
+        }
+        Ok(())
+    }
+
+    fn end_write(&mut self, index: u16, sub: u8, total: u32) -> Result<(), SdoAbort> {
+        if is_program_object(index) {
+            return self.program.end_write(index, sub, total);
+        }
+        match (index, sub) {
+            (0x1003, 0) if self.pending[0] == 0 => {
+                self.state.history.clear();
+                Ok(())
+            }
+            (0x1003, 0) => Err(SdoAbort::InvalidValue),
+            (0x1017, 0) => {
+                self.state.heartbeat_ms = u16::from_le_bytes(self.pending);
+                Ok(())
+            }
+            (0x1029, 1) if self.pending[0] <= 2 => {
+                self.state.error_behaviour = self.pending[0];
+                Ok(())
+            }
+            (0x1029, 1) => Err(SdoAbort::ValueTooHigh),
+            _ => Err(SdoAbort::ReadOnly),
+        }
+    }
+
+    fn abort_write(&mut self, index: u16, sub: u8) {
+        if is_program_object(index) {
+            self.program.abort_write(index, sub);
+        }
+    }
+}
