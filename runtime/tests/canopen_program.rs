@@ -268,7 +268,7 @@ fn the_communication_objects_read_and_write_through_the_same_server() {
         500,
     );
     let file = jaco_policy(&[64], 7).unwrap();
-    let mut serve = |n: &mut Node<'_>, device: &mut DeviceState, f: SdoFrame| {
+    let serve = |n: &mut Node<'_>, device: &mut DeviceState, f: SdoFrame| {
         let program = ProgramObjects {
             slots: &mut n.slots,
             host: &mut n.ctl,
