@@ -6,6 +6,18 @@ cd "$(dirname "$0")/.."
 start=$(date +%s)
 step() { printf '\n==> [%4ss] %s\n' "$(( $(date +%s) - start ))" "$*"; }
 need() { command -v "$1" >/dev/null || { echo "error: '$1' not found: $2" >&2; exit 1; }; }
+# Installs the Debian packages among "$@" that are missing (apt-get; an update first if needed).
+debian_install() {
+  local missing
+  missing=$(for p in "$@"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || echo "$p"
+  done)
+  [ -z "$missing" ] && return 0
+  # shellcheck disable=SC2086
+  { apt-get install -y --no-install-recommends $missing >/dev/null 2>&1 \
+    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends $missing >/dev/null; }; } \
+    || { echo "error: cannot install $(echo $missing) (apt-get; needs root)" >&2; exit 1; }
+}
 
 step "toolchain"
 need cargo "install Rust with rustup (the pinned toolchain is in rust-toolchain.toml)"
@@ -16,40 +28,20 @@ rustup target add thumbv7em-none-eabihf >/dev/null
 cargo --version
 
 step "Debian packages (fonts for PNG plots)"
-if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
-  { apt-get install -y --no-install-recommends fonts-dejavu-core >/dev/null 2>&1 \
-    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends fonts-dejavu-core >/dev/null; }; } \
-    || { echo "error: cannot install fonts-dejavu-core (apt-get; needs root)" >&2; exit 1; }
-fi
+debian_install fonts-dejavu-core
 
 step "Debian packages (Mesa's EGL and OSMesa for the dexstack renderer)"
 # render_mode="rgb_array" and `python -m dexstack.render` draw with the mujoco wheel's offscreen
 # renderer, headless through EGL (MUJOCO_GL=egl, the package's default without a display) or OSMesa;
 # without a GPU, Mesa's llvmpipe software rasteriser draws (tests/test_dexstack_render.py).
 render_pkgs="libegl1 libegl-mesa0 libgl1 libopengl0 libgl1-mesa-dri libosmesa6"
-missing=$(for p in $render_pkgs; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || echo "$p"
-done)
-if [ -n "$missing" ]; then
-  # shellcheck disable=SC2086
-  { apt-get install -y --no-install-recommends $missing >/dev/null 2>&1 \
-    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends $missing >/dev/null; }; } \
-    || { echo "error: cannot install $(echo $missing) (apt-get; needs root)" >&2; exit 1; }
-fi
+debian_install $render_pkgs
 
 step "Debian packages (Open MPI and libclang for the trainer's mpi feature)"
 # `--all-features` builds the trainer's `mpi` feature (the mpi crate's bindings need libclang)
 # and trainer/tests/distributed.rs runs mpirun.
 mpi_pkgs="openmpi-bin libopenmpi-dev libclang-dev"
-missing=$(for p in $mpi_pkgs; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || echo "$p"
-done)
-if [ -n "$missing" ]; then
-  # shellcheck disable=SC2086
-  { apt-get install -y --no-install-recommends $missing >/dev/null 2>&1 \
-    || { apt-get update >/dev/null && apt-get install -y --no-install-recommends $missing >/dev/null; }; } \
-    || { echo "error: cannot install $(echo $missing) (apt-get; needs root)" >&2; exit 1; }
-fi
+debian_install $mpi_pkgs
 need mpirun "install Open MPI (Debian: apt-get install openmpi-bin libopenmpi-dev)"
 
 step "MuJoCo and Jaco assets (scripts/setup-mujoco.sh)"

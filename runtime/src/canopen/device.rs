@@ -18,7 +18,7 @@
 //! [`DeviceState`].
 
 use super::abort::SdoAbort;
-use super::od::{Access, Entry, ObjectDictionary};
+use super::od::{Access, Entry, ObjectDictionary, read_value};
 use super::program::{ProgramHost, ProgramObjects, is_program_object};
 
 /// Most emergency codes kept in 0x1003.
@@ -211,10 +211,7 @@ impl<H: DeviceHost + ProgramHost> ObjectDictionary for DeviceObjects<'_, '_, H> 
             return self.program.read(index, sub, offset, buf);
         }
         let (bytes, len) = self.value(index, sub)?;
-        let rest = bytes.get(offset as usize..len).unwrap_or(&[]);
-        let n = rest.len().min(buf.len());
-        buf[..n].copy_from_slice(&rest[..n]);
-        Ok(n)
+        Ok(read_value(&bytes[..len], offset, buf))
     }
 
     fn begin_write(&mut self, index: u16, sub: u8, size: Option<u32>) -> Result<(), SdoAbort> {

@@ -64,3 +64,12 @@ pub trait ObjectDictionary {
     /// The download was aborted (by either side, or timed out): drop what was written.
     fn abort_write(&mut self, index: u16, sub: u8);
 }
+
+/// Copies the part of `value` from byte `offset` on into `buf` (as much as fits); returns how many
+/// bytes: the [`ObjectDictionary::read`] of an object whose whole value is at hand.
+pub fn read_value(value: &[u8], offset: u32, buf: &mut [u8]) -> usize {
+    let rest = value.get(offset as usize..).unwrap_or(&[]);
+    let n = rest.len().min(buf.len());
+    buf[..n].copy_from_slice(&rest[..n]);
+    n
+}

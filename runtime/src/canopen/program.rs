@@ -25,7 +25,7 @@
 use dex_policy::PolicyView;
 
 use super::abort::SdoAbort;
-use super::od::{Access, Entry, ObjectDictionary};
+use super::od::{Access, Entry, ObjectDictionary, read_value};
 use crate::error::LoadError;
 use crate::slots::{FlashStatus, PolicySlots, SlotError};
 
@@ -236,10 +236,7 @@ impl<H: ProgramHost> ObjectDictionary for ProgramObjects<'_, '_, H> {
         };
         let size = self.entry(index, sub)?.size.unwrap_or(0) as usize;
         let bytes = value.to_le_bytes();
-        let rest = bytes.get(offset as usize..size).unwrap_or(&[]);
-        let n = rest.len().min(buf.len());
-        buf[..n].copy_from_slice(&rest[..n]);
-        Ok(n)
+        Ok(read_value(bytes.get(..size).unwrap_or(&[]), offset, buf))
     }
 
     fn begin_write(&mut self, index: u16, sub: u8, size: Option<u32>) -> Result<(), SdoAbort> {
