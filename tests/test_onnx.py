@@ -69,7 +69,8 @@ def torch_linear_mlp(rng, hidden=(64, 64)):
 
 
 def dynamo_style_mlp(rng):
-    """MatMul + Add with Constant nodes, Identity and Flatten, input normalisation (Sub, Mul,
+    """MatMul + Add with Constant nodes, Cast to float (SB3's `obs.float()`), Identity and
+    Flatten, input normalisation (Sub, Mul,
     Clip), and an output scaling (Mul) with limits (Clip): physical commands."""
     mean = rng.normal(0, 1, OBS)
     inv_std = rng.uniform(0.5, 2.0, OBS)
@@ -78,7 +79,8 @@ def dynamo_style_mlp(rng):
     out_scale = SCALE * 0.9
     nodes = [
         helper.make_node("Constant", [], ["mean"], value=_init("mean_t", mean)),
-        helper.make_node("Flatten", ["obs"], ["flat"], name="flatten", axis=1),
+        helper.make_node("Cast", ["obs"], ["obs32"], name="obs_float", to=TensorProto.FLOAT),
+        helper.make_node("Flatten", ["obs32"], ["flat"], name="flatten", axis=1),
         helper.make_node("Sub", ["flat", "mean"], ["centred"], name="norm_sub"),
         helper.make_node("Mul", ["centred", "inv_std"], ["scaled"], name="norm_mul"),
         helper.make_node("Clip", ["scaled", "lo", "hi"], ["clipped"], name="norm_clip"),
@@ -174,6 +176,15 @@ def test_unsupported_operators_are_refused_by_node_name():
     model = torch_linear_mlp(rng)
     model.graph.node[1].op_type = "Sigmoid"
     _refused(model, r"/actor/Relu_0.*Sigmoid.*not an operator")
+
+
+def test_a_cast_to_anything_but_float_is_refused():
+    rng = np.random.default_rng(11)
+    model = torch_linear_mlp(rng)
+    cast = helper.make_node("Cast", ["a0"], ["a0i"], name="to_int", to=TensorProto.INT64)
+    model.graph.node[2].input[0] = "a0i"
+    model.graph.node.insert(2, cast)
+    _refused(model, r"to_int.*Cast.*float", task="grasp")
 
 
 def test_a_wrong_input_width_is_refused():

@@ -13,7 +13,8 @@
 //! - **after the last layer**: `Mul`/`Div` by constants (the output scaling) and `Clip`, `Max`,
 //!   `Min` by constants (the limits).
 //!
-//! `Identity`, `Flatten` and `Dropout` pass through; `Constant` nodes are constants. Anything
+//! `Identity`, `Flatten`, `Dropout` and `Cast` to float pass through; `Constant` nodes are
+//! constants. Anything
 //! else is refused with the node's name and operator.
 //!
 //! **Units of the output.** A graph that scales its last layer's output (a `Mul` or `Div` after
@@ -483,11 +484,19 @@ fn step(
     let op = node.op_type.as_str();
     let limits_set = net.lower.is_some() || net.upper.is_some();
     match op {
-        "Identity" | "Flatten" | "Dropout" => {
+        "Identity" | "Flatten" | "Dropout" | "Cast" => {
             if op == "Flatten" && attr_i(node, "axis", 1) != 1 {
                 return Err(unsupported(
                     node,
                     "only Flatten with axis 1 (a no-op on [batch, n])",
+                ));
+            }
+            // PyTorch's `obs.float()` (Stable-Baselines3 writes it) exports as a Cast to float: a
+            // no-op on a float input; a cast to anything else is not.
+            if op == "Cast" && attr_i(node, "to", 0) != i64::from(DATA_TYPE_FLOAT) {
+                return Err(unsupported(
+                    node,
+                    "only a Cast to float (1) on the float observation",
                 ));
             }
             count(&mut net.folded, &format!("{op} (no-op)"));
