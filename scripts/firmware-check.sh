@@ -69,7 +69,8 @@ fi
 for tool in qemu-system-arm arm-none-eabi-size python3 cargo rustup timeout; do
     command -v "$tool" >/dev/null || die "missing tool: $tool"
 done
-# RUSTUP_AUTO_INSTALL=0 here: rust-toolchain.toml's `targets` is not enough (FACTS 5).
+# RUSTUP_AUTO_INSTALL=0 on these machines: rust-toolchain.toml's `targets` alone does not install
+# the target (scripts/test.sh adds it the same way).
 rustup target add "$TARGET" >/dev/null 2>&1 || die "rustup target add $TARGET failed"
 HOST=$(rustc -vV | sed -n 's/^host: //p')
 [ -n "$HOST" ] || die "cannot tell the host target"

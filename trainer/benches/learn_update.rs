@@ -7,7 +7,7 @@
 //! machine only ever slows a round down). Two figures per configuration:
 //! - `kernel`: the bare update (target actor + target critic forward, critic forward/backward + Adam,
 //!   actor forward, critic forward/backward into the actor, actor backward + Adam, Polyak target update),
-//!   the same work as the figures in FACTS.md section 6;
+//!   the same work as the PyTorch side by side measures (`scripts/bench-torch.py`, docs/benchmarks.md);
 //! - `trainer`: [`Trainer::run`] with one worker, R = 40 updates per step on a free environment, so it
 //!   adds replay sampling, the shared-parameter locking and copies, and acting.
 //!
