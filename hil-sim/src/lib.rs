@@ -12,6 +12,8 @@
 //! - [`flash`]: policy flashing over CAN (segmented transfer into an inactive slot, verification,
 //!   activation outside operational).
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
+//! - [`wire`]: classic CAN frames' time on the wire (bit stuffing) and arbitration, the model of the
+//!   wire-time figures.
 //!
 //! With feature `socketcan`, [`port`] runs the controller node on a Linux SocketCAN interface
 //! (untested here: the development machines have no `AF_CAN`).
@@ -26,3 +28,4 @@ pub mod plant;
 #[cfg(feature = "socketcan")]
 pub mod port;
 pub mod protocol;
+pub mod wire;

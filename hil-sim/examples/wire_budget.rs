@@ -1,0 +1,89 @@
+//! The observation-to-action time of the cell's frames on a classic CAN bus, from the wire model
+//! (`dex_hil_sim::wire`) and the controller's instruction count on the Cortex-M4F
+//! (`firmware/budget.txt`): the plant queues the 15 observation frames at once, the controller
+//! computes after the last one arrives, then sends the 3 action frames.
+//!
+//! `cargo run -p dex-hil-sim --example wire_budget [INSTRUCTIONS_PER_STEP] [CPU_HZ]`
+//! (defaults: `controller_step` of firmware/budget.txt, 168 MHz, one instruction per cycle: a
+//! lower bound of the compute time on a Cortex-M4F, whose loads and multiplies can take more).
+
+use dex_hil_sim::wire::{Offer, bits_ns, schedule, unstuffed_bits, worst_case_bits};
+use dex_runtime::can::messages::{ACTION_BASE_ID, ACTION_FRAMES, OBS_BASE_ID, OBS_FRAMES};
+
+fn main() {
+    let budget = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../firmware/budget.txt"
+    ))
+    .unwrap_or_default();
+    let from_budget = |key: &str| {
+        budget
+            .lines()
+            .find_map(|l| l.strip_prefix(key)?.trim().parse::<u64>().ok())
+    };
+    let args: Vec<String> = std::env::args().collect();
+    let instructions = args
+        .get(1)
+        .and_then(|a| a.parse().ok())
+        .or_else(|| from_budget("controller_step "))
+        .unwrap_or(608_842);
+    let hz: u64 = args
+        .get(2)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(168_000_000);
+    let compute_ns = instructions * 1_000_000_000 / hz;
+    println!(
+        "controller: {instructions} instructions per step at {} MHz = {:.2} ms",
+        hz / 1_000_000,
+        compute_ns as f64 / 1e6
+    );
+    println!(
+        "| bitrate | stuffing | observation on the wire | compute | actions on the wire | observation to last action |"
+    );
+    println!("|---|---|---:|---:|---:|---:|");
+    for bitrate in [125_000u32, 250_000, 500_000, 1_000_000] {
+        for (name, bits) in [
+            ("none", unstuffed_bits(8)),
+            ("worst case", worst_case_bits(8)),
+        ] {
+            let obs: Vec<Offer> = (0..OBS_FRAMES)
+                .map(|k| Offer {
+                    ready_ns: 0,
+                    id: OBS_BASE_ID + k as u16,
+                    bits,
+                })
+                .collect();
+            let obs_end = schedule(&obs, bitrate, 0)
+                .iter()
+                .map(|s| s.end_ns)
+                .max()
+                .unwrap_or(0);
+            let ready = obs_end + compute_ns;
+            let act: Vec<Offer> = (0..ACTION_FRAMES)
+                .map(|k| Offer {
+                    ready_ns: ready,
+                    id: ACTION_BASE_ID + k as u16,
+                    bits,
+                })
+                .collect();
+            let act_end = schedule(&act, bitrate, obs_end)
+                .iter()
+                .map(|s| s.end_ns)
+                .max()
+                .unwrap_or(ready);
+            let ms = |ns: u64| ns as f64 / 1e6;
+            println!(
+                "| {} kbit/s | {name} | {:.2} ms | {:.2} ms | {:.2} ms | {:.2} ms |",
+                bitrate / 1000,
+                ms(obs_end),
+                ms(compute_ns),
+                ms(act_end - ready),
+                ms(act_end)
+            );
+            debug_assert_eq!(
+                act_end - ready,
+                bits_ns(bits, bitrate) * ACTION_FRAMES as u64
+            );
+        }
+    }
+}
