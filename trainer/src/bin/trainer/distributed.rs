@@ -161,7 +161,9 @@ mod with_mpi {
                 t0.elapsed().as_secs_f64()
             ));
             if let Err(e) = result {
-                eprintln!("error: {:#}", anyhow::Error::from(e));
+                // One write: mpirun's abort banner, printed by another process into the same
+                // stream, must not land inside the line (it did, 1 run in 12: session 13).
+                line_to_stderr(&format!("error: {:#}", anyhow::Error::from(e)));
                 // The other ranks would wait for rank 0 forever: end the job.
                 transport.abort(FAILED);
             }
@@ -182,7 +184,7 @@ mod with_mpi {
         let (outcome, stats, progress) = match result {
             Ok(r) => r,
             Err(e) => {
-                eprintln!("error: rank {rank}: {e}");
+                line_to_stderr(&format!("error: rank {rank}: {e}"));
                 transport.abort(FAILED);
             }
         };
