@@ -76,11 +76,13 @@ fn an_int8_file_exports_as_its_dequantised_twin() {
     let f32_view = PolicyView::decode(&back.file).unwrap();
     let values: Vec<f32> = f32_view.values().iter().collect();
     let source: Vec<f32> = view.values().iter().collect();
+    let mut int8_layers = 0;
     for (k, (q, f)) in view.layers().zip(f32_view.layers()).enumerate() {
         assert_eq!(f.dtype, LayerDtype::F32);
         if q.dtype != LayerDtype::Int8 {
             continue;
         }
+        int8_layers += 1;
         let packed = view.int8_weights(k).unwrap();
         for i in 0..q.inputs {
             for j in 0..q.outputs {
@@ -90,6 +92,7 @@ fn an_int8_file_exports_as_its_dequantised_twin() {
             }
         }
     }
+    assert!(int8_layers > 0, "the golden has int8 layers to compare");
 }
 
 /// The exported model of the Jaco golden, to be broken in one way per test.

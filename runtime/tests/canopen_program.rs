@@ -4,6 +4,9 @@
 //! running policy as it was.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
+mod common;
+use common::{REGION, bytes, regions};
+
 use dex_runtime::can::messages::{NmtCommand, nmt_frame};
 use dex_runtime::canopen::device::{DeviceObjects, DeviceState, Identity};
 use dex_runtime::canopen::program::{
@@ -17,16 +20,8 @@ use dex_runtime::testkit::jaco_policy;
 use dex_runtime::{Controller, ControllerConfig, MockClock, PolicySlots, State};
 
 const NODE: u8 = 0x10;
-const REGION: usize = 16 * 1024;
+
 type Ctl = Controller<'static, 64>;
-
-fn regions() -> (Vec<u64>, Vec<u64>) {
-    (vec![0u64; REGION / 8], vec![0u64; REGION / 8])
-}
-
-fn bytes(r: &mut [u64]) -> &mut [u8] {
-    bytemuck::cast_slice_mut(r)
-}
 
 struct Node<'r> {
     ctl: Ctl,

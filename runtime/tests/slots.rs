@@ -2,6 +2,9 @@
 //! explicit and automatic roll-back, and power cuts at every byte of a transfer and of the commit.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
+mod common;
+use common::{REGION, bytes, regions};
+
 use dex_policy::PolicyView;
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::E2eSender;
@@ -22,17 +25,8 @@ use dex_runtime::{
 use embedded_can::Frame;
 
 const NODE: u8 = 0x10;
-const REGION: usize = 16 * 1024;
+
 type Ctl = Controller<'static, 64>;
-
-/// Two aligned regions.
-fn regions() -> (Vec<u64>, Vec<u64>) {
-    (vec![0u64; REGION / 8], vec![0u64; REGION / 8])
-}
-
-fn bytes(r: &mut [u64]) -> &mut [u8] {
-    bytemuck::cast_slice_mut(r)
-}
 
 /// Responses on 0x580 + node, as byte vectors.
 fn responses(out: &Outbox) -> Vec<Vec<u8>> {

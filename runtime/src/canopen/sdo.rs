@@ -59,26 +59,25 @@ fn reply(command: u8, index: u16, sub: u8, data: [u8; 4]) -> SdoFrame {
     f
 }
 
+/// A segmented transfer: `offset` bytes moved so far, the next segment's toggle.
+#[derive(Clone, Copy)]
+struct Segmented {
+    index: u16,
+    sub: u8,
+    /// Bytes in all, when known (always for an upload).
+    size: Option<u32>,
+    offset: u32,
+    toggle: bool,
+}
+
 /// A transfer in progress.
 #[derive(Clone)]
 enum Transfer {
     Idle,
-    /// Segmented download: `offset` bytes written, next segment's toggle.
-    Download {
-        index: u16,
-        sub: u8,
-        size: Option<u32>,
-        offset: u32,
-        toggle: bool,
-    },
+    /// Segmented download.
+    Download(Segmented),
     /// Segmented upload.
-    Upload {
-        index: u16,
-        sub: u8,
-        size: u32,
-        offset: u32,
-        toggle: bool,
-    },
+    Upload(Segmented),
     /// Block download, inside a sub-block or waiting for the end request.
     Block(BlockDownload),
 }
@@ -137,9 +136,7 @@ impl SdoServer {
     pub fn current(&self) -> Option<(u16, u8)> {
         match &self.transfer {
             Transfer::Idle => None,
-            Transfer::Download { index, sub, .. } | Transfer::Upload { index, sub, .. } => {
-                Some((*index, *sub))
-            }
+            Transfer::Download(t) | Transfer::Upload(t) => Some((t.index, t.sub)),
             Transfer::Block(b) => Some((b.index, b.sub)),
         }
     }
@@ -162,7 +159,7 @@ impl SdoServer {
 
     fn drop_transfer(&mut self, od: &mut impl ObjectDictionary) {
         match core::mem::replace(&mut self.transfer, Transfer::Idle) {
-            Transfer::Download { index, sub, .. } => od.abort_write(index, sub),
+            Transfer::Download(t) => od.abort_write(t.index, t.sub),
             Transfer::Block(b) => od.abort_write(b.index, b.sub),
             Transfer::Upload { .. } | Transfer::Idle => {}
         }
@@ -180,6 +177,31 @@ impl SdoServer {
         Some(abort_frame(index, sub, why))
     }
 
+    /// Answers a request that fits no running transfer (abort 0x0504_0001, naming the running
+    /// transfer's object if there is one, which is dropped).
+    fn unexpected(&mut self, od: &mut impl ObjectDictionary) -> Option<SdoFrame> {
+        let (index, sub) = self.current().unwrap_or((0, 0));
+        self.fail(od, index, sub, SdoAbort::UnknownCommand)
+    }
+
+    /// The running segmented transfer (a download when `download`) that segment request `f`
+    /// continues, after its toggle check; else the abort to send.
+    fn segment_of(
+        &mut self,
+        f: &SdoFrame,
+        od: &mut impl ObjectDictionary,
+        download: bool,
+    ) -> Result<Segmented, Option<SdoFrame>> {
+        let seg = match (&self.transfer, download) {
+            (Transfer::Download(t), true) | (Transfer::Upload(t), false) => *t,
+            _ => return Err(self.unexpected(od)),
+        };
+        if (f[0] & 0x10 != 0) != seg.toggle {
+            return Err(self.fail(od, seg.index, seg.sub, SdoAbort::ToggleBit));
+        }
+        Ok(seg)
+    }
+
     /// Handles one request (the data of a frame on `0x600 + node`) at time `now_ms`; returns the
     /// response to send on `0x580 + node`, if any.
     pub fn on_request(
@@ -190,8 +212,7 @@ impl SdoServer {
     ) -> Option<SdoFrame> {
         self.last_request_ms = now_ms;
         let Ok(frame) = <[u8; 8]>::try_from(data) else {
-            let (index, sub) = self.current().unwrap_or((0, 0));
-            return self.fail(od, index, sub, SdoAbort::UnknownCommand);
+            return self.unexpected(od);
         };
         let index = u16::from_le_bytes([frame[1], frame[2]]);
         let sub = frame[3];
@@ -223,10 +244,10 @@ impl SdoServer {
                 self.initiate_block_download(&frame, index, sub, od)
             }
             6 => self.end_block_download(&frame, od),
-            _ => {
-                let (i, s) = self.current().unwrap_or((index, sub));
-                self.fail(od, i, s, SdoAbort::UnknownCommand)
-            }
+            _ => match self.current() {
+                Some(_) => self.unexpected(od),
+                None => Some(abort_frame(index, sub, SdoAbort::UnknownCommand)),
+            },
         }
     }
 
@@ -288,13 +309,13 @@ impl SdoServer {
         {
             return Some(abort_frame(index, sub, e));
         }
-        self.transfer = Transfer::Download {
+        self.transfer = Transfer::Download(Segmented {
             index,
             sub,
             size,
             offset: 0,
             toggle: false,
-        };
+        });
         Some(reply(0x60, index, sub, [0; 4]))
     }
 
@@ -303,21 +324,18 @@ impl SdoServer {
         f: &SdoFrame,
         od: &mut impl ObjectDictionary,
     ) -> Option<SdoFrame> {
-        let Transfer::Download {
+        let seg = match self.segment_of(f, od, true) {
+            Ok(seg) => seg,
+            Err(abort) => return abort,
+        };
+        let Segmented {
             index,
             sub,
             size,
             offset,
             toggle,
-        } = self.transfer.clone()
-        else {
-            let (i, s) = self.current().unwrap_or((0, 0));
-            return self.fail(od, i, s, SdoAbort::UnknownCommand);
-        };
-        let t = f[0] & 0x10 != 0;
-        if t != toggle {
-            return self.fail(od, index, sub, SdoAbort::ToggleBit);
-        }
+        } = seg;
+        let t = toggle;
         let len = 7 - u32::from((f[0] >> 1) & 0x07);
         let last = f[0] & 0x01 != 0;
         let end = offset + len;
@@ -339,13 +357,11 @@ impl SdoServer {
                 return Some(abort_frame(index, sub, e));
             }
         } else {
-            self.transfer = Transfer::Download {
-                index,
-                sub,
-                size,
+            self.transfer = Transfer::Download(Segmented {
                 offset: end,
                 toggle: !toggle,
-            };
+                ..seg
+            });
         }
         Some(response)
     }
@@ -377,32 +393,30 @@ impl SdoServer {
                 Err(e) => Some(abort_frame(index, sub, e)),
             };
         }
-        self.transfer = Transfer::Upload {
+        self.transfer = Transfer::Upload(Segmented {
             index,
             sub,
-            size,
+            size: Some(size),
             offset: 0,
             toggle: false,
-        };
+        });
         Some(reply(0x41, index, sub, size.to_le_bytes()))
     }
 
     fn upload_segment(&mut self, f: &SdoFrame, od: &mut impl ObjectDictionary) -> Option<SdoFrame> {
-        let Transfer::Upload {
+        let seg = match self.segment_of(f, od, false) {
+            Ok(seg) => seg,
+            Err(abort) => return abort,
+        };
+        let Segmented {
             index,
             sub,
-            size,
             offset,
             toggle,
-        } = self.transfer.clone()
-        else {
-            let (i, s) = self.current().unwrap_or((0, 0));
-            return self.fail(od, i, s, SdoAbort::UnknownCommand);
-        };
-        let t = f[0] & 0x10 != 0;
-        if t != toggle {
-            return self.fail(od, index, sub, SdoAbort::ToggleBit);
-        }
+            ..
+        } = seg;
+        let size = seg.size.unwrap_or(offset);
+        let t = toggle;
         let want = (size - offset).min(7) as usize;
         let mut out = [0u8; 8];
         match od.read(index, sub, offset, &mut out[1..1 + want]) {
@@ -416,13 +430,11 @@ impl SdoServer {
         self.transfer = if last {
             Transfer::Idle
         } else {
-            Transfer::Upload {
-                index,
-                sub,
-                size,
+            Transfer::Upload(Segmented {
                 offset: end,
                 toggle: !toggle,
-            }
+                ..seg
+            })
         };
         Some(out)
     }
@@ -507,9 +519,12 @@ impl SdoServer {
         f: &SdoFrame,
         od: &mut impl ObjectDictionary,
     ) -> Option<SdoFrame> {
+        if !matches!(self.transfer, Transfer::Block(_)) {
+            // (A running segmented transfer is dropped, its partial download included.)
+            return self.unexpected(od);
+        }
         let Transfer::Block(b) = core::mem::replace(&mut self.transfer, Transfer::Idle) else {
-            let (i, s) = self.current().unwrap_or((0, 0));
-            return self.fail(od, i, s, SdoAbort::UnknownCommand);
+            return None;
         };
         let (index, sub) = (b.index, b.sub);
         let Some(final_segment) = b.final_segment else {

@@ -21,9 +21,10 @@ pub struct Batch {
     /// Discount multiplier of the bootstrap term: 0 after a terminal step, else 1 (for n-step
     /// rows `gamma^(n-1)`, see [`super::n_step`]).
     pub not_done: Vec<f32>,
-    /// The first `demo_rows` rows come from the demonstration buffer.
+    /// The first `demo_rows` rows have a cloning target: the demonstration buffer's rows, then,
+    /// when the replay stores teacher labels ([`Replay::with_labels`]), every replay row too.
     pub demo_rows: usize,
-    /// Cloning targets of the demonstration rows, `demo_rows x act_dim`.
+    /// Cloning targets of those rows, `demo_rows x act_dim`.
     pub bc_target: Vec<f32>,
 }
 
@@ -192,10 +193,6 @@ impl Replay {
         for r in from..end {
             let i = rng.below(self.len);
             self.copy_row_into(i, batch, r);
-            if let Some(l) = &self.labels {
-                let a = self.act_dim;
-                batch.bc_target[r * a..(r + 1) * a].copy_from_slice(&l[i * a..(i + 1) * a]);
-            }
         }
         batch.len = end;
         if self.labels.is_some() {
@@ -216,6 +213,9 @@ impl Replay {
         batch.act[r * a..(r + 1) * a].copy_from_slice(&self.act[i * a..(i + 1) * a]);
         batch.reward[r] = self.reward[i];
         batch.not_done[r] = self.not_done[i];
+        if let Some(l) = &self.labels {
+            batch.bc_target[r * a..(r + 1) * a].copy_from_slice(&l[i * a..(i + 1) * a]);
+        }
     }
 
     /// Raw contents for checkpoints: (next slot, stored count, obs, act, reward, next_obs, not_done).

@@ -5,10 +5,6 @@
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
-use std::sync::OnceLock;
-
-use dex_runtime::interface::OBS_DIM;
-use dex_trainer::env::Scene;
 
 /// Runs `trainer ARGS` to the end and returns what it printed.
 pub fn trainer(args: &[&str]) -> Output {
@@ -26,19 +22,11 @@ pub fn env_tool(args: &[&str]) -> Output {
         .expect("run env-tool")
 }
 
-/// The Jaco scene, loaded once per test process (needs `scripts/setup-mujoco.sh` to have run).
-pub fn scene() -> &'static Scene {
-    static SCENE: OnceLock<Scene> = OnceLock::new();
-    SCENE.get_or_init(|| match Scene::load() {
-        Ok(s) => s,
-        Err(e) => panic!("{e}"),
-    })
-}
-
-/// An observation's bits, for bit-for-bit comparisons.
-pub fn bits(o: &[f32; OBS_DIM]) -> Vec<u32> {
-    o.iter().map(|x| x.to_bits()).collect()
-}
+// The scene loader and observation bits of dex-env's tests, the same file.
+#[path = "../../../env/tests/common/mod.rs"]
+mod env_common;
+#[allow(unused_imports)] // each test file uses some of them
+pub use env_common::{bits, scene};
 
 /// A command's stdout and stderr together, for assertions and failure messages.
 pub fn text(o: &Output) -> String {
