@@ -8,6 +8,11 @@
 //! any point leaves either the previous file or the new one, never a torn one; a crash before the
 //! rename may leave the temporary file behind (a hidden `*.tmp` next to the target), which nothing
 //! reads.
+//!
+//! Only a regular file is replaced. A path that names something else (`/dev/null`, `/dev/stdout`, a
+//! named pipe: a user's `--actions /dev/null`) is written straight into, as `>` in a shell does; a
+//! rename there would put a regular file in the device's place for every other program on the
+//! machine. A symbolic link keeps being a link: the file it points to is the one replaced.
 
 use std::ffi::OsString;
 use std::fs::{File, OpenOptions};
@@ -28,13 +33,59 @@ const TEMP_ATTEMPTS: u32 = 64;
 /// The folder must exist. On an error before the rename, `path` is untouched and the temporary
 /// file is removed; an error flushing the folder is reported after the new file is in place (file
 /// systems that cannot flush a folder, `EINVAL`, are accepted as they are).
+///
+/// A path that exists and is neither a regular file nor a folder (a device such as `/dev/null`, a
+/// named pipe) is written straight into instead; a symbolic link is followed, so the link stays
+/// and the file it names is replaced.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let resolved;
+    let path = match std::fs::symlink_metadata(path) {
+        Ok(meta) if meta.file_type().is_symlink() => {
+            resolved = resolve_link(path)?;
+            resolved.as_path()
+        }
+        _ => path,
+    };
+    if let Ok(meta) = std::fs::metadata(path)
+        && !meta.is_file()
+        && !meta.is_dir()
+    {
+        return write_in_place(path, bytes);
+    }
     let tmp = write_temp(path, bytes)?;
     if let Err(e) = std::fs::rename(&tmp, path) {
         let _ = std::fs::remove_file(&tmp);
         return Err(e);
     }
     sync_dir(parent_dir(path))
+}
+
+/// The path a symbolic link finally names (the link's own folder anchors a relative target); a
+/// dangling link names the file it would create.
+fn resolve_link(path: &Path) -> io::Result<PathBuf> {
+    let mut path = path.to_path_buf();
+    // As the kernel does, give up on a chain of links too long to be anything but a loop.
+    for _ in 0..40 {
+        match std::fs::symlink_metadata(&path) {
+            Ok(meta) if meta.file_type().is_symlink() => {
+                let target = std::fs::read_link(&path)?;
+                path = parent_dir(&path).join(target);
+            }
+            _ => return Ok(path),
+        }
+    }
+    Err(io::Error::new(
+        io::ErrorKind::InvalidInput,
+        format!("{}: too many levels of symbolic links", path.display()),
+    ))
+}
+
+/// Writes into something that is not a regular file (a device, a named pipe): opened for writing
+/// as it is, never removed or renamed over.
+fn write_in_place(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let mut file = OpenOptions::new().write(true).open(path)?;
+    file.write_all(bytes)?;
+    file.flush()
 }
 
 /// The first half of [`write_atomic`]: writes and flushes `bytes` to a new temporary file next to
@@ -196,6 +247,89 @@ mod tests {
         assert_eq!(e.kind(), io::ErrorKind::NotFound);
         assert!(write_atomic(Path::new("/"), b"x").is_err());
         assert!(names(&dir).is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The kind of thing at `path`, its link not followed.
+    #[cfg(unix)]
+    fn kind(path: &Path) -> &'static str {
+        use std::os::unix::fs::FileTypeExt;
+        let t = std::fs::symlink_metadata(path).unwrap().file_type();
+        match () {
+            _ if t.is_symlink() => "link",
+            _ if t.is_fifo() => "fifo",
+            _ if t.is_char_device() => "char device",
+            _ if t.is_file() => "file",
+            _ => "other",
+        }
+    }
+
+    /// `--actions /dev/null` once replaced the machine's `/dev/null` with a regular file (which
+    /// then fed compiler messages to every program that read it). A named pipe stands in for the
+    /// device here: it stays a pipe and its reader gets the bytes.
+    #[cfg(unix)]
+    #[test]
+    fn a_named_pipe_is_written_into_not_replaced() {
+        let dir = scratch("fifo");
+        let fifo = dir.join("actions.csv");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success(), "mkfifo failed");
+        let reader = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || std::fs::read(&fifo).unwrap())
+        };
+        write_atomic(&fifo, b"step,a0\n0,0.5\n").unwrap();
+        assert_eq!(reader.join().unwrap(), b"step,a0\n0,0.5\n");
+        assert_eq!(kind(&fifo), "fifo");
+        assert_eq!(names(&dir), ["actions.csv"]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn the_null_device_stays_a_device() {
+        let null = Path::new("/dev/null");
+        assert_eq!(
+            kind(null),
+            "char device",
+            "this machine's /dev/null is not a device"
+        );
+        write_atomic(null, b"discarded").unwrap();
+        assert_eq!(kind(null), "char device");
+        assert_eq!(std::fs::read(null).unwrap(), b"");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_link_stays_a_link_and_its_file_is_replaced() {
+        let dir = scratch("link");
+        std::fs::create_dir(dir.join("store")).unwrap();
+        std::fs::write(dir.join("store/policy-v1.dxpl"), b"old").unwrap();
+        let link = dir.join("policy.dxpl");
+        std::os::unix::fs::symlink("store/policy-v1.dxpl", &link).unwrap();
+        write_atomic(&link, b"new").unwrap();
+        assert_eq!(kind(&link), "link");
+        assert_eq!(
+            std::fs::read(dir.join("store/policy-v1.dxpl")).unwrap(),
+            b"new"
+        );
+        assert_eq!(names(&dir.join("store")), ["policy-v1.dxpl"]);
+        // A dangling link: the file it names is made.
+        let dangling = dir.join("next.dxpl");
+        std::os::unix::fs::symlink("store/policy-v2.dxpl", &dangling).unwrap();
+        write_atomic(&dangling, b"v2").unwrap();
+        assert_eq!(kind(&dangling), "link");
+        assert_eq!(
+            std::fs::read(dir.join("store/policy-v2.dxpl")).unwrap(),
+            b"v2"
+        );
+        // A loop of links is an error, not a hang.
+        std::os::unix::fs::symlink("loop-b", dir.join("loop-a")).unwrap();
+        std::os::unix::fs::symlink("loop-a", dir.join("loop-b")).unwrap();
+        assert!(write_atomic(&dir.join("loop-a"), b"x").is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
