@@ -9,7 +9,7 @@ step() { printf '\n==> [%4ss] %s\n' "$(( $(date +%s) - start ))" "$*"; }
 # the null device (a program renamed a file over it; `trainer eval --actions /dev/null` once did,
 # see trainer/src/atomic_write.rs) it reads whatever was last written there and the build fails
 # with "failed to run `rustc` to learn about target-specific information". A machine that
-# arrives so is mended (as root); a step of the suite that breaks it fails the suite, by name.
+# arrives so is mended (as root); a step of the suite that breaks it fails the suite.
 null_device_ok() { [ -c /dev/null ]; }
 if ! null_device_ok; then
   echo "warning: /dev/null is a $(stat -c %F /dev/null), not the null device: recreating it" >&2

@@ -115,8 +115,10 @@ impl LoadedPolicy {
             }
         });
         let mut physical = [0.0f32; ACT_DIM];
+        let mut buf = [0.0f32; dex_runtime::features::INPUT_MAX];
+        let x = dex_runtime::features::policy_input(&input, self.net.obs_dim(), &mut buf);
         self.net
-            .act(self.file.as_bytes(), &input, &mut physical)
+            .act(self.file.as_bytes(), x, &mut physical)
             .map_err(|e| Error::Policy(e.into()))?;
         if can_quantisation {
             physical = physical.map(quantise_action);

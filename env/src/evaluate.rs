@@ -13,6 +13,7 @@ use dex_policy::PolicyView;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
 use dex_runtime::envelope::{Envelope, EnvelopeConfig};
+use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 
 use crate::{EnvConfig, EnvError, JacoEnv, Scene};
@@ -161,7 +162,8 @@ pub fn run_episode_recorded(
             obs
         };
         let mut physical = [0.0f32; ACT_DIM];
-        mlp.act(&input, &mut physical)?;
+        let mut buf = [0.0f32; INPUT_MAX];
+        mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
         if let Some(e) = envelope.as_deref_mut() {
             e.apply(&input, &mut physical);
         }
@@ -189,13 +191,7 @@ pub fn eval_envelope() -> Envelope {
 /// Jaco cell's.
 pub fn decode_jaco_policy(aligned: &[u8]) -> Result<PolicyView<'_>, EvalError> {
     let view = PolicyView::decode(aligned)?;
-    view.check_layout(
-        dex_runtime::interface::OBSERVATION_FIELDS
-            .iter()
-            .map(|f| (f.name, f.size)),
-        ACTION_JOINTS.iter().map(|j| j.name),
-    )
-    .map_err(EvalError::Layout)?;
+    dex_runtime::features::check_layout(&view).map_err(EvalError::Layout)?;
     Ok(view)
 }
 
@@ -324,7 +320,8 @@ pub fn heldout_observations(
         loop {
             out.push(obs);
             let mut physical = [0.0f32; ACT_DIM];
-            mlp.act(&obs, &mut physical)?;
+            let mut buf = [0.0f32; INPUT_MAX];
+            mlp.act(policy_input(&obs, mlp.obs_dim(), &mut buf), &mut physical)?;
             let step = env.step(&physical_to_env_action(&physical))?;
             obs = step.observation;
             if step.done {
@@ -376,8 +373,9 @@ pub fn action_errors(
     let mut out = Vec::with_capacity(observations.len() * ACT_DIM);
     for obs in observations {
         let (mut ya, mut yb) = ([0.0f32; ACT_DIM], [0.0f32; ACT_DIM]);
-        ma.act(obs, &mut ya)?;
-        mb.act(obs, &mut yb)?;
+        let mut buf = [0.0f32; INPUT_MAX];
+        ma.act(policy_input(obs, ma.obs_dim(), &mut buf), &mut ya)?;
+        mb.act(policy_input(obs, mb.obs_dim(), &mut buf), &mut yb)?;
         for (k, joint) in ACTION_JOINTS.iter().enumerate() {
             let range = f64::from(joint.max) - f64::from(joint.min);
             out.push((f64::from(ya[k]) - f64::from(yb[k])).abs() / range);

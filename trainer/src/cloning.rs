@@ -7,6 +7,7 @@ use crate::env::Task;
 use crate::export::{ExportError, ExportInfo, export_scaled_actor};
 use crate::learn::LearnError;
 use crate::learn::bc::{BcConfig, BcPolicy, train_bc};
+use dex_runtime::features::{INPUT_MAX, task_features};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
 /// Why cloning failed.
@@ -70,14 +71,33 @@ pub fn clone_to_policy_file(
     progress: &mut dyn FnMut(u64, f32),
 ) -> Result<(BcPolicy, Vec<u8>), CloneError> {
     let (obs, labels) = clone_rows(sets, task)?;
-    let policy = train_bc(&obs, &labels, OBS_DIM, ACT_DIM, cfg, progress)?;
+    let transitions = (obs.len() / OBS_DIM) as u64;
+    let (inputs, dim) = if cfg.features {
+        (with_features(&obs), INPUT_MAX)
+    } else {
+        (obs, OBS_DIM)
+    };
+    let policy = train_bc(&inputs, &labels, dim, ACT_DIM, cfg, progress)?;
     let info = ExportInfo {
         task,
         seed: cfg.seed,
-        transitions: (obs.len() / OBS_DIM) as u64,
+        transitions,
         success_rate: None,
         eval_episodes: 0,
     };
     let file = export_scaled_actor(&policy.actor, &policy.params, &policy.scaling, &info)?;
     Ok((policy, file))
+}
+
+/// Observation rows (`OBS_DIM` wide) with the runtime's task features appended to each
+/// (`INPUT_MAX` wide), as the controller feeds a policy that takes them.
+pub fn with_features(obs: &[f32]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(obs.len() / OBS_DIM * INPUT_MAX);
+    for row in obs.chunks_exact(OBS_DIM) {
+        let mut o = [0.0f32; OBS_DIM];
+        o.copy_from_slice(row);
+        out.extend_from_slice(&o);
+        out.extend_from_slice(&task_features(&o));
+    }
+    out
 }

@@ -383,7 +383,14 @@ fn export_actor_clipped(
     info: &ExportInfo,
     obs_clip: f32,
 ) -> Result<Vec<u8>, ExportError> {
-    let obs_dim = dex_runtime::interface::OBS_DIM;
+    // An actor as wide as the observation and the task features takes both
+    // (dex_runtime::features); any other width must be the observation's.
+    let features = dex_runtime::features::takes_features(net.input_dim());
+    let obs_dim = if features {
+        dex_runtime::features::INPUT_MAX
+    } else {
+        dex_runtime::interface::OBS_DIM
+    };
     let act_dim = dex_runtime::interface::ACT_DIM;
     if net.input_dim() != obs_dim || net.output_dim() != act_dim {
         return Err(ExportError::Shape {
@@ -433,7 +440,11 @@ fn export_actor_clipped(
         values.extend_from_slice(l.weights);
         values.extend_from_slice(l.bias);
     }
-    let observation = dex_runtime::interface::policy_observation();
+    let observation = if features {
+        dex_runtime::features::policy_observation_with_features()
+    } else {
+        dex_runtime::interface::policy_observation()
+    };
     let action = dex_runtime::interface::policy_action();
     let body = Body {
         task: task_code(info.task),

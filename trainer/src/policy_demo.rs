@@ -42,8 +42,11 @@ impl Demonstration for PolicyDemonstration {
 
     fn act(&mut self, env: &JacoEnv) -> Result<[f32; ACT_DIM], EnvError> {
         let mut physical = [0.0f32; ACT_DIM];
+        let mut buf = [0.0f32; dex_runtime::features::INPUT_MAX];
+        let x =
+            dex_runtime::features::policy_input(env.observation(), self.net.obs_dim(), &mut buf);
         self.net
-            .act(self.file.as_bytes(), env.observation(), &mut physical)
+            .act(self.file.as_bytes(), x, &mut physical)
             .map_err(|e| EnvError::StartScheme(format!("demonstration policy: {e}")))?;
         Ok(physical_to_env_action(&physical))
     }

@@ -90,6 +90,35 @@ fn rounds_leave_their_files_and_resume() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `--features`: the clone takes the controller's task features after the observation, its file
+/// lists them, and every round (the DAgger round's policy-led recording, the selection through the
+/// runtime) runs it.
+#[test]
+fn a_featured_clone_lists_the_features_and_runs_through_the_runtime() {
+    use dex_runtime::features::{FEATURE_FIELDS, INPUT_MAX};
+    let scene = Scene::load().unwrap();
+    let dir = std::env::temp_dir().join(format!("dex-imitate-features-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let mut cfg = tiny();
+    cfg.bc.features = true;
+    let s = run_imitation(&scene, &cfg, &dir, &mut |_| {}).unwrap();
+    assert_eq!(
+        s.records.len(),
+        2,
+        "round 1 recorded with the featured policy leading"
+    );
+    for round in 0..2 {
+        let bytes = std::fs::read(dir.join(format!("policy-{round}.dxpl"))).unwrap();
+        let file = dex_runtime::aligned::aligned_copy(&bytes);
+        let view = dex_trainer::evaluate::decode_jaco_policy(file.as_bytes()).unwrap();
+        assert_eq!(view.body().obs_dim(), INPUT_MAX);
+        let names: Vec<&str> = view.body().observation.iter().map(|f| f.name).collect();
+        let tail: Vec<&str> = FEATURE_FIELDS.iter().map(|f| f.name).collect();
+        assert_eq!(names[names.len() - tail.len()..], tail[..]);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn bad_settings_are_refused() {
     let bad = ImitationConfig {

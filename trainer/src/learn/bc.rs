@@ -87,6 +87,11 @@ pub struct BcConfig {
     pub label_clip: f32,
     /// Seed of initialisation and sampling.
     pub seed: u64,
+    /// The actor also takes the controller's task features (`dex_runtime::features`: the pinch
+    /// site's yaw, the bricks' yaws relative to it modulo the half turn, the pinch-to-brick
+    /// vectors in the pinch frame) after the observation; its file lists them and the runtime
+    /// computes them. Off in the first releases' recipe.
+    pub features: bool,
 }
 
 impl Default for BcConfig {
@@ -103,6 +108,7 @@ impl Default for BcConfig {
             obs_clip: 5.0,
             label_clip: 0.97,
             seed: 0,
+            features: false,
         }
     }
 }

@@ -92,6 +92,9 @@ pub struct CloneArgs {
     /// Hidden layer widths, comma-separated.
     #[arg(long, value_delimiter = ',')]
     hidden: Option<Vec<usize>>,
+    /// The policy also takes the controller's task features (docs/imitation.md).
+    #[arg(long)]
+    features: bool,
     /// Learning rate.
     #[arg(long)]
     lr: Option<f32>,
@@ -219,6 +222,7 @@ pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
     if let Some(h) = &a.hidden {
         cfg.hidden = h.clone();
     }
+    cfg.features = a.features;
     if let Some(lr) = a.lr {
         cfg.adam.lr = lr;
     }
