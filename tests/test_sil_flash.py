@@ -1,52 +1,91 @@
-"""Policy flashing over CAN (the runtime's A/B slots, runtime/src/slots.rs, in the hil-sim controller
-node): segmented transfer into the inactive slot, verification, activation only outside operational;
-an interrupted, corrupted or refused transfer leaves the active policy untouched; explicit roll-back
-to the previous policy, and the automatic one (EMCY 0xFF07) when a new policy's first evaluation
-faults."""
+"""Policy flashing over CAN with a stock CANopen tool: the `canopen` library's SDO client against the
+controller's SDO server (runtime/src/canopen/, in the hil-sim controller node). Program download
+(CiA 302-3): the .dxpl into 0x1F50:1 (block transfer), program control 0x1F51:1 (1 start, 3 clear,
+0x80 roll back), the active file's CRC-32 in 0x1F56:1, the flash status in 0x1F57:1. Verification
+before activation, activation only outside operational; an interrupted, corrupted or refused
+download leaves the active policy running; explicit roll-back to the previous policy, and the
+automatic one (EMCY 0xFF07) when a new policy's first evaluation faults. Every refusal is an SDO
+abort with its CiA 301 code."""
+import time
 import zlib
 
-import can
+import canopen
+import pytest
+from canopen.sdo import SdoAbortedError
 
 from conftest import (
     DB, LIMITS, NMT_PREOP, NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect,
     decode_action, nmt, observation, wait_heartbeat,
 )
 
-REQ, RESP = 0x600 + NODE, 0x580 + NODE
 POLICY_INFO = 0x290
-OK, SEQUENCE, CRC, FORMAT, REFUSED, OPERATIONAL_REFUSED, NO_IMAGE = 0, 1, 3, 4, 5, 6, 7
-NO_PREVIOUS = 10
 EMCY = 0x080 + NODE
+SDO_RESPONSE = 0x580 + NODE
+PROGRAM_DATA, PROGRAM_CONTROL, PROGRAM_ID, FLASH_STATUS = 0x1F50, 0x1F51, 0x1F56, 0x1F57
+START, CLEAR, ROLL_BACK = 1, 3, 0x80
+# CiA 301 abort codes the controller answers with (docs/runtime.md).
+TIMEOUT = 0x0504_0000
+CANNOT_STORE = 0x0800_0020  # the file failed verification
+DEVICE_STATE = 0x0800_0022  # refused while operational
+NO_DATA = 0x0800_0024  # nothing staged to start, no previous policy to roll back to
+# Flash status (0x1F57:1) bits 1-7: the last download's or control's result.
+RESULT_OK, RESULT_NO_PROGRAM, RESULT_FORMAT, RESULT_REFUSED, RESULT_ABORTED = 0, 1, 2, 3, 5
 
 
-def request(bus, data, wait=True):
-    bus.send(can.Message(arbitration_id=REQ, data=data, is_extended_id=False))
-    if not wait:
-        return None
-    got = collect(bus, 1.0, lambda m: m.arbitration_id == RESP)
-    assert got and got[-1][1].arbitration_id == RESP, "no flash response"
-    return bytes(got[-1][1].data)
+def sdo_node(s):
+    """A canopen RemoteNode for the controller, on its own python-can connection to the bus
+    (`canopen.Network` reads that bus in a thread of its own). No EDS yet: an empty dictionary,
+    the objects addressed by index and sub-index. The network is disconnected before the Sim
+    closes its buses (`close`)."""
+    bus = s.bus()
+    s.buses.remove(bus)  # the network shuts it down
+    network = canopen.Network(bus)
+    network.connect()
+    node = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
+    network.add_node(node)
+    node.sdo.RESPONSE_TIMEOUT = 2.0  # two cores shared with other work
+    close = s.close
+
+    def close_network_first():
+        network.disconnect()
+        close()
+
+    s.close = close_network_first
+    return node
 
 
-def flash(bus, image, crc=None, cut_at=None):
-    """Init, data segments (acknowledged every 32), end. Returns the end status (or None if cut)."""
-    r = request(bus, [0x01, *len(image).to_bytes(4, "little")])
-    assert r == bytes([0x81, OK])
-    segments = [image[i:i + 6] for i in range(0, len(image), 6)]
-    for n, seg in enumerate(segments):
-        if cut_at is not None and n == cut_at:
-            return None
-        last = n + 1 == len(segments)
-        r = request(bus, [0x02, n & 0xFF, *seg], wait=(n + 1) % 32 == 0 or last)
-        if r is not None:
-            assert r == bytes([0x82, OK, n & 0xFF]), r
-    crc = zlib.crc32(image) if crc is None else crc
-    return request(bus, [0x03, *crc.to_bytes(4, "little")])[1]
+def download(node, image):
+    """Block download of `image` into 0x1F50:1 (raises SdoAbortedError on a refusal)."""
+    with node.sdo.open(PROGRAM_DATA, 1, "wb", block_transfer=True, size=len(image)) as f:
+        f.write(image)
 
 
-def status(bus):
-    r = request(bus, [0x06])
-    return r[1], int.from_bytes(r[2:6], "little")
+def control(node, value):
+    node.sdo.download(PROGRAM_CONTROL, 1, bytes([value]))
+
+
+def flash(node, image):
+    """The whole flash as a tool does it: download, start, and the identification checked."""
+    download(node, image)
+    control(node, START)
+    assert program_id(node) == zlib.crc32(image)
+
+
+def program_id(node):
+    """CRC-32 of the active policy file (0x1F56:1)."""
+    return int.from_bytes(node.sdo.upload(PROGRAM_ID, 1), "little")
+
+
+def flash_status(node):
+    """(staged, last result, downloading) from 0x1F57:1."""
+    w = int.from_bytes(node.sdo.upload(FLASH_STATUS, 1), "little")
+    return bool(w & 0x100), (w >> 1) & 0x7F, bool(w & 1)
+
+
+def aborted(code, call, *args):
+    with pytest.raises(SdoAbortedError) as e:
+        call(*args)
+    assert e.value.code == code, f"abort {e.value.code:#010x}, expected {code:#010x}"
 
 
 def runs_policy(bus, tx=None):
@@ -68,9 +107,9 @@ def header_info(image):
 
 
 def policy_info(bus):
-    """(format version, layout hash) of the next policy-info frame. Call it right after the
-    activation response: the controller announces the file at its next cycle, and any other
-    request's wait in between would swallow the frame."""
+    """(format version, layout hash) of the next policy-info frame on `bus` (a connection other
+    than the SDO client's). Call it right after the start: the controller announces the file at
+    its next cycle."""
     got = collect(bus, 0.3, lambda m: m.arbitration_id == POLICY_INFO)
     assert got and got[-1][1].arbitration_id == POLICY_INFO, "no policy-info frame"
     d = DB.decode_message(POLICY_INFO, got[-1][1].data, decode_choices=False)
@@ -80,16 +119,32 @@ def policy_info(bus):
 def test_flash_verify_activate(sim, policies):
     s = sim("good")
     bus = s.bus()
+    node = sdo_node(s)
     old = policies["good"].read_bytes()
     new = policies["other"].read_bytes()
     wait_heartbeat(bus, PREOP, 2.0)
-    assert status(bus) == (0, zlib.crc32(old))
-    assert flash(bus, new) == OK
-    assert status(bus)[0] == 2  # verified, not active yet
-    assert status(bus)[1] == zlib.crc32(old)
-    assert request(bus, [0x04]) == bytes([0x84, OK])
+    assert program_id(node) == zlib.crc32(old)
+    assert flash_status(node) == (False, RESULT_OK, False)
+    download(node, new)
+    assert flash_status(node) == (True, RESULT_OK, False)  # verified, staged, not active yet
+    assert program_id(node) == zlib.crc32(old)
+    collect(bus, 0.1)  # drop what came so far
+    control(node, START)
     assert policy_info(bus) == header_info(new)  # policy info announced again
-    assert status(bus) == (0, zlib.crc32(new))
+    assert program_id(node) == zlib.crc32(new)
+    assert flash_status(node) == (False, RESULT_OK, False)
+    assert runs_policy(bus)
+
+
+def test_segmented_download_works_too(sim, policies):
+    s = sim("good")
+    bus = s.bus()
+    node = sdo_node(s)
+    new = policies["other"].read_bytes()
+    wait_heartbeat(bus, PREOP, 2.0)
+    node.sdo.download(PROGRAM_DATA, 1, new, force_segment=True)
+    control(node, START)
+    assert program_id(node) == zlib.crc32(new)
     assert runs_policy(bus)
 
 
@@ -98,6 +153,7 @@ def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
     # its commands within 1% of each joint's range of the f32 policy's for the same observation.
     s = sim("good")
     bus = s.bus()
+    node = sdo_node(s)
     f32_image = policies["other"].read_bytes()
     int8_image = policies["int8"].read_bytes()
     assert int8_image[4:6] == (2).to_bytes(2, "little") and len(int8_image) < len(f32_image)
@@ -105,12 +161,13 @@ def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
     tx = PlantTx()  # one sender: its E2E counters run on across both activations
 
     def commands(image):
-        assert flash(bus, image) == OK
-        assert request(bus, [0x04]) == bytes([0x84, OK])
+        download(node, image)
+        collect(bus, 0.1)
+        control(node, START)
         # The controller runs this file, not the previous one: its policy-info frame names the
         # file's format version and layout hash (the int8 file says 2, the f32 file 1).
         assert policy_info(bus) == header_info(image)
-        assert status(bus) == (0, zlib.crc32(image))
+        assert program_id(node) == zlib.crc32(image)
         nmt(bus, NMT_START)
         wait_heartbeat(bus, OPERATIONAL, 1.0)
         tx.send(bus, observation(1))
@@ -131,93 +188,112 @@ def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
 def test_interrupted_transfer_leaves_the_active_policy(sim, policies):
     s = sim("good")
     bus = s.bus()
+    node = sdo_node(s)
     old = policies["good"].read_bytes()
+    new = policies["other"].read_bytes()
     wait_heartbeat(bus, PREOP, 2.0)
-    assert flash(bus, policies["other"].read_bytes(), cut_at=200) is None
-    assert status(bus) == (1, zlib.crc32(old))  # still receiving, old one active
-    assert request(bus, [0x04]) == bytes([0x84, NO_IMAGE])
-    # A segment out of sequence aborts the transfer.
-    assert request(bus, [0x02, 0x55, 1, 2, 3]) == bytes([0x82, SEQUENCE, 0x55])
-    assert status(bus) == (0, zlib.crc32(old))
+    # A segmented download cut after 1 kB: the client goes silent (the raw stream sends at most
+    # one 7-byte segment a write).
+    stream = node.sdo.open(PROGRAM_DATA, 1, "wb", size=len(new), buffering=0)
+    sent = 0
+    while sent < 1024:
+        sent += stream.write(new[sent:1024])
+    # The controller's SDO timeout (1 s on its own clock) aborts the transfer: abort 0x0504_0000.
+    got = collect(bus, 2.0, lambda m: m.arbitration_id == SDO_RESPONSE and m.data[0] == 0x80)
+    aborts = [m for _, m in got if m.arbitration_id == SDO_RESPONSE and m.data[0] == 0x80]
+    assert aborts, "no SDO abort from the controller"
+    assert int.from_bytes(aborts[-1].data[4:8], "little") == TIMEOUT
+    # The abort reaches the canopen client on its own connection too; let it arrive before the
+    # next request (which drops what came unasked) so that it is not read as that request's answer.
+    time.sleep(0.3)
+    assert flash_status(node) == (False, RESULT_ABORTED, False)
+    assert program_id(node) == zlib.crc32(old)
+    aborted(NO_DATA, control, node, START)  # nothing staged
+    assert program_id(node) == zlib.crc32(old)
     assert runs_policy(bus)
 
 
 def test_corrupted_or_refused_images_are_rejected(sim, policies):
     s = sim("good")
     bus = s.bus()
+    node = sdo_node(s)
     old = policies["good"].read_bytes()
     new = bytearray(policies["other"].read_bytes())
     wait_heartbeat(bus, PREOP, 2.0)
-    good_crc = zlib.crc32(new)
     new[len(new) // 2] ^= 0x01
-    assert flash(bus, bytes(new), crc=good_crc) == CRC  # corrupted on the way
-    assert flash(bus, bytes(new)) == FORMAT  # transfer intact, file CRC wrong
-    assert flash(bus, policies["mismatched"].read_bytes()) == REFUSED  # layout
-    assert request(bus, [0x04]) == bytes([0x84, NO_IMAGE])
-    assert status(bus) == (0, zlib.crc32(old))
+    aborted(CANNOT_STORE, download, node, bytes(new))  # transfer intact, file CRC wrong
+    assert flash_status(node) == (False, RESULT_FORMAT, False)
+    aborted(CANNOT_STORE, download, node, policies["mismatched"].read_bytes())  # layout
+    assert flash_status(node) == (False, RESULT_REFUSED, False)
+    aborted(NO_DATA, control, node, START)
+    assert flash_status(node) == (False, RESULT_NO_PROGRAM, False)
+    assert program_id(node) == zlib.crc32(old)
     assert runs_policy(bus)
 
 
-def test_activation_is_refused_while_operational(sim, policies):
+def test_flashing_is_refused_while_operational(sim, policies):
     s = sim("good")
     bus = s.bus()
-    wait_heartbeat(bus, PREOP, 2.0)
+    node = sdo_node(s)
+    old = policies["good"].read_bytes()
     new = policies["other"].read_bytes()
-    assert flash(bus, new) == OK
+    wait_heartbeat(bus, PREOP, 2.0)
+    download(node, new)  # staged while pre-operational
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
-    assert request(bus, [0x04]) == bytes([0x84, OPERATIONAL_REFUSED])
+    aborted(DEVICE_STATE, control, node, START)
+    aborted(DEVICE_STATE, download, node, new)
+    assert program_id(node) == zlib.crc32(old)
     nmt(bus, NMT_STOP)
     wait_heartbeat(bus, STOPPED, 1.0)
-    assert request(bus, [0x04]) == bytes([0x84, OK])
-    assert status(bus) == (0, zlib.crc32(new))
-
-
-def flags(bus):
-    """Byte 6 of the status response: bit 0 a previous policy is kept, bit 1 on trial."""
-    r = request(bus, [0x06])
-    assert len(r) == 7, r
-    return r[6]
+    # The refused download touched nothing: the staged file starts now.
+    assert flash_status(node)[0] is True
+    control(node, START)
+    assert program_id(node) == zlib.crc32(new)
+    # Clear discards a staged file.
+    download(node, old)
+    assert flash_status(node)[0] is True
+    control(node, CLEAR)
+    assert flash_status(node)[0] is False
+    aborted(NO_DATA, control, node, START)
+    assert program_id(node) == zlib.crc32(new)
 
 
 def test_explicit_roll_back_to_the_previous_policy(sim, policies):
     s = sim("good")
     bus = s.bus()
+    node = sdo_node(s)
     old = policies["good"].read_bytes()
     new = policies["other"].read_bytes()
     wait_heartbeat(bus, PREOP, 2.0)
     tx = PlantTx()
-    assert request(bus, [0x07]) == bytes([0x87, NO_PREVIOUS])  # only one policy so far
-    assert flash(bus, new) == OK
-    assert request(bus, [0x04]) == bytes([0x84, OK])
-    assert policy_info(bus) == header_info(new)
-    assert flags(bus) == 0b11  # previous kept, new one on trial
+    aborted(NO_DATA, control, node, ROLL_BACK)  # only one policy so far
+    flash(node, new)
     assert runs_policy(bus, tx)
-    assert flags(bus) == 0b01  # evaluated: no longer on trial
     # Not while operational.
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
-    assert request(bus, [0x07]) == bytes([0x87, OPERATIONAL_REFUSED])
+    aborted(DEVICE_STATE, control, node, ROLL_BACK)
     nmt(bus, NMT_STOP)
     wait_heartbeat(bus, STOPPED, 1.0)
-    assert request(bus, [0x07]) == bytes([0x87, OK])
+    collect(bus, 0.1)
+    control(node, ROLL_BACK)
     assert policy_info(bus) == header_info(old)
-    assert status(bus) == (0, zlib.crc32(old))
+    assert program_id(node) == zlib.crc32(old)
     assert runs_policy(bus, tx)
-    assert request(bus, [0x07]) == bytes([0x87, OK])  # and forward again
-    assert status(bus) == (0, zlib.crc32(new))
+    control(node, ROLL_BACK)  # and forward again
+    assert program_id(node) == zlib.crc32(new)
 
 
 def test_a_policy_faulting_at_its_first_evaluation_is_rolled_back_with_emcy_0xff07(sim, policies):
     s = sim("good")
     bus = s.bus()
+    node = sdo_node(s)
     old = policies["good"].read_bytes()
     bad = policies["faulting"].read_bytes()
     wait_heartbeat(bus, PREOP, 2.0)
     tx = PlantTx()
-    assert flash(bus, bad) == OK  # a valid file: it verifies
-    assert request(bus, [0x04]) == bytes([0x84, OK])
-    assert status(bus) == (0, zlib.crc32(bad))
+    flash(node, bad)  # a valid file: it verifies and starts
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
     tx.send(bus, observation(1))
@@ -228,8 +304,10 @@ def test_a_policy_faulting_at_its_first_evaluation_is_rolled_back_with_emcy_0xff
     assert (d["error_code"], d["fault_code"]) == (0xFF07, 7), d
     hb = [m for m in got if m.arbitration_id == 0x700 + NODE]
     assert hb and hb[0].data[0] == STOPPED and hb[0].data[3] == 7, hb
-    assert status(bus) == (0, zlib.crc32(old))  # the previous policy is active again
-    assert flags(bus) == 0  # the faulty one is not kept for a roll-back
+    assert program_id(node) == zlib.crc32(old)  # the previous policy is active again
+    aborted(NO_DATA, control, node, ROLL_BACK)  # the faulty one is not kept for a roll-back
+    # The emergency is in the pre-defined error field (0x1003): fault code 7, error code 0xFF07.
+    assert node.sdo.upload(0x1003, 1) == (0x0007_FF07).to_bytes(4, "little")
     assert s.diag()["state"] == "SafeStop" and s.diag()["fault"] == "PolicyRolledBack"
     # NMT start runs the old policy (error reset first).
     assert runs_policy(bus, tx)

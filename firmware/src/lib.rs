@@ -17,9 +17,9 @@
 //! exactly as a product controller would.
 //!
 //! 3. with feature `slots`, the A/B policy slots ([`slots::replay_slots`]): the embedded policy in
-//!    one of two static slots, the recorded flash transfer of another file (`DEX_FLASH`, frames of
-//!    a real `hil-sim` flash) fed to the controller, which writes the inactive slot and activates
-//!    it; the trace replayed before and after the swap (`P`/`R` and `Q`/`V` lines), and a transfer
+//!    one of two static slots, the recorded flash transfer of another file (`DEX_FLASH`, frames
+//!    of a real CANopen program download by `hil-sim`'s SDO client) fed to the controller's SDO
+//!    server, which writes the inactive slot and activates it on the recorded start; the trace replayed before and after the swap (`P`/`R` and `Q`/`V` lines), and a transfer
 //!    cut in the middle (then a reset) and one with a corrupt segment, both leaving the old slot
 //!    active (`F` lines).
 //!
@@ -174,8 +174,8 @@ pub struct Summary {
     pub controller: Stats,
     /// Feature `slots`: one controller period with the policy in a slot (`on_frame_slots`).
     pub slot_controller: Stats,
-    /// Feature `slots`: one flash request frame (a segment; the end's verification and the
-    /// activation are the maxima).
+    /// Feature `slots`: one SDO request frame of the recorded program download (a block segment;
+    /// the end of the block download, which verifies the file, and the start are the maxima).
     pub flash_request: Stats,
     /// Instructions of one safety-envelope call ([`Envelope::apply`]) on an adversarial command.
     pub envelope: Stats,
@@ -368,8 +368,11 @@ pub mod slots {
 
     use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
     use dex_runtime::can::{CanFrame, E2eSender};
+    use dex_runtime::canopen::program::{PROGRAM_CONTROL, control};
+    use dex_runtime::canopen::sdo::abort_code;
+    use dex_runtime::controller::{SDO_REQUEST_BASE, SDO_RESPONSE_BASE};
     use dex_runtime::interface::ACT_DIM;
-    use dex_runtime::slots::{CRC32, SEGMENT_BYTES, SLOT_HEADER_BYTES};
+    use dex_runtime::slots::SLOT_HEADER_BYTES;
     use dex_runtime::{Controller, ControllerConfig, MockClock, Network, PolicySlots, State};
     use embedded_can::Frame;
 
@@ -423,10 +426,21 @@ pub mod slots {
         Fault::Slots { what }
     }
 
+    /// The controller's SDO responses (`0x580 + node`).
+    const RESPONSE: u16 = SDO_RESPONSE_BASE + 0x10;
+
+    /// An SDO response's bytes.
+    fn bytes8(f: &CanFrame) -> [u8; 8] {
+        let mut d = [0u8; 8];
+        let n = f.data().len().min(8);
+        d[..n].copy_from_slice(&f.data()[..n]);
+        d
+    }
+
     /// What feeding recorded requests did.
     struct Fed {
-        /// The last response: command byte and status.
-        last: Option<(u8, u8)>,
+        /// The last SDO response.
+        last: Option<[u8; 8]>,
         /// Responses that differ from the recording.
         mismatches: usize,
     }
@@ -475,8 +489,8 @@ pub mod slots {
             request += 1;
             let (out, n) = p.measure(|| ctrl.on_frame_slots(&f, &clock, slots));
             stats.add(n.map(|v| v.saturating_sub(overhead)));
-            if let Some(r) = out.iter().find(|r| r.standard_id() == Some(0x580 + 0x10)) {
-                fed.last = Some((r.data()[0], r.data().get(1).copied().unwrap_or(0xFF)));
+            if let Some(r) = out.iter().find(|r| r.standard_id() == Some(RESPONSE)) {
+                fed.last = Some(bytes8(r));
                 expect = Some(*r);
             }
         }
@@ -567,18 +581,17 @@ pub mod slots {
         }
         let cfg = ControllerConfig::default();
         let mut ctrl = Controller::<'static, WIDTH>::new(cfg);
-        // Factory provisioning: the embedded policy written into a slot through the same API.
+        // Factory provisioning: the embedded policy written into a slot through the same API
+        // program download uses.
         let file = &POLICY.0;
         slots
             .begin(file.len())
             .map_err(|_| fail("policy larger than a slot"))?;
-        for (n, chunk) in file.chunks(SEGMENT_BYTES).enumerate() {
-            slots
-                .segment(n as u8, chunk)
-                .map_err(|_| fail("provisioning write"))?;
-        }
         slots
-            .end(CRC32.checksum(file), |view, _| ctrl.check_policy(view))
+            .write_at(0, file)
+            .map_err(|_| fail("provisioning write"))?;
+        slots
+            .finish(|view, _| ctrl.check_policy(view))
             .map_err(|_| fail("provisioning verification"))?;
         ctrl.activate_slot(&mut slots)
             .map_err(|_| fail("provisioning activation"))?;
@@ -621,24 +634,29 @@ pub mod slots {
         if !cut_ok {
             return Err(fail("a cut transfer changed the active slot"));
         }
-        // 2. A corrupt segment (one bit in the middle data segment): refused, old slot active.
+        // 2. A corrupt segment (one bit in the middle block segment), fed up to the end of the
+        // block download: its CRC-16 refuses it (abort 0x0504_0004); a start then finds nothing
+        // to activate (0x0800_0024); the old slot stays active.
+        let end = end_request().ok_or(fail("no end of block download in the recording"))?;
         let fed = feed(
             p,
             &mut ctrl,
             &mut slots,
-            total - 1,
+            end + 1,
             Some(total / 2),
             &mut summary.flash_request,
             overhead,
         );
         let activate = feed_activate(p, &mut ctrl, &mut slots);
-        let corrupt_ok = fed.last == Some((0x83, 3))
-            && activate == Some((0x84, 7))
+        let end_abort = fed.last.as_ref().and_then(|r| abort_code(r));
+        let start_abort = activate.as_ref().and_then(|r| abort_code(r));
+        let corrupt_ok = end_abort == Some(0x0504_0004)
+            && start_abort == Some(0x0800_0024)
             && slots.active_crc() == old_crc;
         p.line(format_args!(
-            "F corrupt end={:02x?} activate={:02x?} active={:08x} old={}",
-            fed.last,
-            activate,
+            "F corrupt end-abort={:08x?} start-abort={:08x?} active={:08x} old={}",
+            end_abort,
+            start_abort,
             slots.active_crc(),
             corrupt_ok
         ));
@@ -655,8 +673,12 @@ pub mod slots {
             &mut summary.flash_request,
             overhead,
         );
-        let swapped =
-            fed.mismatches == 0 && fed.last == Some((0x84, 0)) && slots.active_crc() != old_crc;
+        // The last response is the upload of 0x1F56:1: the new file's CRC-32, now active.
+        let identified = fed.last.is_some_and(|r| {
+            r[..4] == [0x43, 0x56, 0x1F, 1]
+                && u32::from_le_bytes([r[4], r[5], r[6], r[7]]) == slots.active_crc()
+        });
+        let swapped = fed.mismatches == 0 && identified && slots.active_crc() != old_crc;
         p.line(format_args!(
             "F flash requests={total} mismatches={} last={:02x?} active={:08x} swapped={swapped}",
             fed.mismatches,
@@ -680,18 +702,38 @@ pub mod slots {
         Ok(())
     }
 
-    /// Sends an activation request; the response's command byte and status.
+    /// The index (among the requests) of the recording's end-of-block-download request: the
+    /// request the response 0xA1 answers.
+    fn end_request() -> Option<usize> {
+        let mut requests = 0usize;
+        let mut k = 0;
+        while let Some((dir, f)) = recorded(k) {
+            k += 1;
+            if dir == 0 {
+                requests += 1;
+            } else if f.data().first() == Some(&0xA1) {
+                return requests.checked_sub(1);
+            }
+        }
+        None
+    }
+
+    /// Sends program control 0x1F51:1 = 1 (start); the response.
     fn feed_activate(
         p: &mut impl Platform,
         ctrl: &mut Controller<'static, WIDTH>,
         slots: &mut PolicySlots<'_>,
-    ) -> Option<(u8, u8)> {
+    ) -> Option<[u8; 8]> {
         let _ = p;
-        let f = CanFrame::standard(0x600 + 0x10, &[0x04])?;
+        let i = PROGRAM_CONTROL.to_le_bytes();
+        let f = CanFrame::standard(
+            SDO_REQUEST_BASE + 0x10,
+            &[0x2F, i[0], i[1], 1, control::START, 0, 0, 0],
+        )?;
         let out = ctrl.on_frame_slots(&f, &MockClock::new(0), slots);
         out.iter()
-            .find(|r| r.standard_id() == Some(0x580 + 0x10))
-            .map(|r| (r.data()[0], r.data().get(1).copied().unwrap_or(0xFF)))
+            .find(|r| r.standard_id() == Some(RESPONSE))
+            .map(bytes8)
     }
 }
 

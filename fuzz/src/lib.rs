@@ -2,4 +2,5 @@
 //! that each target file holds only its `fuzz_target!` entry).
 #![warn(missing_docs)]
 
+pub mod program;
 pub mod structured;

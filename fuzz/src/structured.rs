@@ -14,8 +14,9 @@
 //! - NMT commands (to this node, to all, to another node, unknown commands);
 //! - clock steps (`MockClock`, the controller's only source of time) with or without a `poll`;
 //! - bus-off and recovery reports from the driver;
-//! - policy flashing: a segmented transfer of one of several seeded synthetic policy files into a
-//!   staging slot (init, data segments, corrupted bytes, end with a right or wrong transfer CRC,
+//! - policy flashing as the controller sees it (the controller's own SDO program download into
+//!   slots is the `program_download` target, `crate::program`): a transfer of one of several
+//!   seeded synthetic policy files into a staging slot (init, data segments, corrupted bytes, end with a right or wrong transfer CRC,
 //!   optionally with the file CRC recomputed so that corruption reaches the decoder), verification,
 //!   activation with `Controller::load_policy`, abort; and direct loads of refused files (wrong
 //!   period, wrong layout, over capacity).
@@ -35,7 +36,7 @@
 
 mod checks;
 mod flash;
-mod images;
+pub(crate) mod images;
 mod input;
 mod model;
 mod plant;

@@ -9,8 +9,8 @@
 //!   real-time (wall clock) or lockstep (bus time, SYNC-driven) mode.
 //! - [`plant`]: the plant node (synthetic plant, or the MuJoCo environment with feature `mujoco`)
 //!   that sends observations every 50 ms and applies the newest valid action; also the NMT master.
-//! - [`flash`]: policy flashing over CAN (segmented transfer into an inactive slot, verification,
-//!   activation outside operational).
+//! - [`flash`]: policy flashing over CAN: the node's slot storage, and the tool's SDO client
+//!   (CiA 302-3 program download: 0x1F50 data, 0x1F51 start, 0x1F56 check).
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
 //! - [`wire`]: classic CAN frames' time on the wire (bit stuffing) and arbitration, the model of the
 //!   wire-time figures.

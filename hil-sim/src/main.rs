@@ -11,6 +11,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
+use dex_hil_sim::flash::{Transfer, flash};
 use dex_hil_sim::node::{TimeMode, spawn_controller_node};
 use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant};
 
@@ -53,6 +54,25 @@ enum Command {
         /// round-trip decimal, as `trainer eval --actions` writes them).
         #[arg(long)]
         actions: Option<PathBuf>,
+    },
+    /// Flash a policy file into a controller node on a bus (`hil-sim bus --controller`): CANopen
+    /// program download (SDO into 0x1F50:1, start on 0x1F51:1, 0x1F56:1 checked against the file's
+    /// CRC-32). The node must be pre-operational or stopped.
+    Flash {
+        /// The bus, e.g. 127.0.0.1:29536.
+        #[arg(long)]
+        connect: SocketAddr,
+        /// The controller's node id.
+        #[arg(long, default_value_t = 0x10)]
+        node: u8,
+        /// Segmented SDO download instead of block download.
+        #[arg(long)]
+        segmented: bool,
+        /// Seconds to wait for each SDO response.
+        #[arg(long, default_value_t = 1.0)]
+        timeout: f64,
+        /// Policy file (.dxpl).
+        policy: PathBuf,
     },
     /// Closed-loop episodes: plant node and controller node over the bus.
     Run(RunArgs),
@@ -180,6 +200,13 @@ fn main() -> Result<()> {
             actions,
         } => plant_command(connect, &episodes, actions),
         Command::Run(args) => run_command(&args),
+        Command::Flash {
+            connect,
+            node,
+            segmented,
+            timeout,
+            policy,
+        } => flash_command(connect, node, segmented, timeout, &policy),
         Command::Bench {
             cycles,
             realtime,
@@ -257,6 +284,30 @@ fn bus_command(args: BusArgs) -> Result<()> {
     }
     eprintln!("bus: {:?}", bus.stats());
     bus.shutdown();
+    Ok(())
+}
+
+fn flash_command(
+    connect: SocketAddr,
+    node: u8,
+    segmented: bool,
+    timeout: f64,
+    policy: &std::path::Path,
+) -> Result<()> {
+    let image = std::fs::read(policy).with_context(|| format!("reading {}", policy.display()))?;
+    let mut port = dex_hil_sim::client::BusClient::connect(connect, "vcan0")?;
+    let how = if segmented {
+        Transfer::Segmented
+    } else {
+        Transfer::Block
+    };
+    let timeout = Duration::try_from_secs_f64(timeout).context("--timeout")?;
+    let done = flash(&mut port, node, &image, how, timeout)
+        .with_context(|| format!("flashing {} into node {node}", policy.display()))?;
+    println!(
+        "flashed {} B ({:?} transfer, {} requests): node {node} runs program {:#010x}",
+        done.bytes, done.transfer, done.requests, done.crc
+    );
     Ok(())
 }
 

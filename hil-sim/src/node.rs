@@ -12,8 +12,10 @@
 //! `< fault busoff MILLIS >` sends both.
 //!
 //! Policy storage: the runtime's A/B slots (`dex_runtime::slots`) over two fixed regions owned by
-//! the node ([`SlotStorage`]); every frame goes through `Controller::on_frame_slots`, which also
-//! serves the flash protocol. Nothing is allocated per flash.
+//! the node ([`SlotStorage`]); every frame goes through `Controller::on_frame_slots` and every
+//! poll through `Controller::poll_slots`, which also serve the CANopen SDO server on
+//! `0x600 + node` (program download into 0x1F50, program control 0x1F51: [`crate::flash`]).
+//! Nothing is allocated per flash.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -21,7 +23,10 @@ use std::time::{Duration, Instant};
 
 use dex_policy::PolicyView;
 use dex_runtime::aligned::aligned_copy;
-use dex_runtime::slots::{FLASH_RESPONSE_BASE, FlashStatus};
+use dex_runtime::canopen::SdoAbort;
+use dex_runtime::canopen::program::PROGRAM_CONTROL;
+use dex_runtime::canopen::sdo::abort_code;
+use dex_runtime::controller::SDO_RESPONSE_BASE;
 use dex_runtime::{
     Clock, Controller, ControllerConfig, Diagnostics, MockClock, Network, Outbox, PolicySlots,
 };
@@ -128,7 +133,7 @@ fn send(port: &mut impl NodePort, out: &Outbox) -> Result<(), ClientError> {
 /// Flash bookkeeping of the node for its status line.
 #[derive(Debug, Default, Clone, Copy)]
 struct FlashCounters {
-    /// Activation requests answered with status 5 (refused by the controller).
+    /// Starts (0x1F51:1 = 1) aborted with 0x0800_0020: the controller refused the file.
     activation_failures: u64,
 }
 
@@ -201,15 +206,12 @@ fn install(
     controller.check_policy(&view).map_err(|e| e.to_string())?;
     Network::<NODE_WIDTH>::new(&view, copy.as_bytes()).map_err(|e| e.to_string())?;
     slots.begin(policy.len()).map_err(|e| e.to_string())?;
-    for (n, chunk) in policy.chunks(dex_runtime::slots::SEGMENT_BYTES).enumerate() {
-        slots
-            .segment(n as u8, chunk)
-            .map_err(|s| format!("slot write: status {s:?}"))?;
-    }
-    let crc = dex_runtime::slots::CRC32.checksum(policy);
     slots
-        .end(crc, |view, _| controller.check_policy(view))
-        .map_err(|s| format!("slot verification: status {s:?}"))?;
+        .write_at(0, policy)
+        .map_err(|e| format!("slot write: {e}"))?;
+    slots
+        .finish(|view, _| controller.check_policy(view))
+        .map_err(|e| format!("slot verification: {e}"))?;
     controller.activate_slot(slots).map_err(|e| e.to_string())
 }
 
@@ -221,13 +223,17 @@ struct Node<'a, 'r> {
     counters: &'a mut FlashCounters,
 }
 
-/// Every frame goes to the controller with the slots (flash requests included); refused
+/// Every frame goes to the controller with the slots (SDO requests included); refused
 /// activations are counted.
 fn dispatch(node: &mut Node<'_, '_>, frame: &CanFrame, clock: &impl Clock) -> Outbox {
     let out = node.controller.on_frame_slots(frame, clock, node.slots);
-    let response = FLASH_RESPONSE_BASE + u16::from(node.node_id);
+    let response = SDO_RESPONSE_BASE + u16::from(node.node_id);
+    let control = PROGRAM_CONTROL.to_le_bytes();
     for f in &out {
-        if f.standard_id() == Some(response) && f.data() == [0x84, FlashStatus::Refused as u8] {
+        if f.standard_id() == Some(response)
+            && f.data().get(1..3) == Some(&control[..])
+            && abort_code(f.data()) == Some(SdoAbort::CannotStore.code())
+        {
             node.counters.activation_failures = node.counters.activation_failures.saturating_add(1);
             eprintln!("hil-sim: flashed policy refused at activation");
         }
@@ -260,13 +266,13 @@ fn real_time_loop(
 ) -> Result<(), ClientError> {
     let clock = WallClock::new();
     let period = u64::from(period_us.max(1));
-    let out = node.controller.poll(&clock);
+    let out = node.controller.poll_slots(&clock, node.slots);
     send(port, &out)?;
     let mut next = clock.now_us() + period;
     while !stop.load(Ordering::Relaxed) {
         let now = clock.now_us();
         if now >= next {
-            let out = node.controller.poll(&clock);
+            let out = node.controller.poll_slots(&clock, node.slots);
             send(port, &out)?;
             next += period * ((now - next) / period + 1);
             publish(node.controller, node.counters);
@@ -305,7 +311,7 @@ fn lockstep_loop(
             Some(Received::Frame(frame, ts)) => {
                 clock.set(ts);
                 let out = if frame.standard_id() == Some(SYNC_ID) {
-                    node.controller.poll(&clock)
+                    node.controller.poll_slots(&clock, node.slots)
                 } else {
                     dispatch(node, &frame, &clock)
                 };

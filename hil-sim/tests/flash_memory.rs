@@ -13,8 +13,10 @@ use dex_hil_sim::flash::SlotStorage;
 use dex_hil_sim::node::{NodePort, TimeMode, run_controller_node};
 use dex_runtime::ControllerConfig;
 use dex_runtime::can::CanFrame;
-use dex_runtime::slots::{CRC32, FLASH_RESPONSE_BASE};
-use dex_runtime::testkit::{flash_command, flash_frames, jaco_policy};
+use dex_runtime::canopen::program::{PROGRAM_CONTROL, PROGRAM_DATA, PROGRAM_ID, control};
+use dex_runtime::controller::SDO_RESPONSE_BASE;
+use dex_runtime::slots::CRC32;
+use dex_runtime::testkit::{jaco_policy, sdo_block_download, sdo_read, sdo_write};
 use embedded_can::Frame;
 
 /// Live heap bytes (allocated less freed).
@@ -55,8 +57,9 @@ static GLOBAL: Counting = Counting;
 const FLASHES: usize = 1_000;
 const NODE: u8 = 0x10;
 
-/// Feeds `FLASHES` flashes (two files in turn, each transfer then activate, a status request
-/// after each) to the node and checks the answers, without allocating.
+/// Feeds `FLASHES` flashes (two files in turn, each an SDO block download into 0x1F50 then a
+/// start on 0x1F51, a read of 0x1F56 after each) to the node and checks the answers, without
+/// allocating.
 struct Script {
     files: [Vec<CanFrame>; 2],
     crcs: [u32; 2],
@@ -73,17 +76,17 @@ struct Script {
 
 impl NodePort for Script {
     fn queue(&mut self, frame: &CanFrame) {
-        if frame.standard_id() != Some(FLASH_RESPONSE_BASE + u16::from(NODE)) {
+        if frame.standard_id() != Some(SDO_RESPONSE_BASE + u16::from(NODE)) {
             return;
         }
         let d = frame.data();
         let ok = match d[0] {
-            0x81..=0x83 => d[1] == 0,
-            0x84 => {
-                self.activated += usize::from(d[1] == 0);
-                d[1] == 0
+            0xA4 | 0xA2 | 0xA1 => true,
+            0x60 => {
+                self.activated += 1;
+                true
             }
-            0x86 => d[2..6] == self.crcs[(self.flash - 1) % 2].to_le_bytes(),
+            0x43 => d[4..8] == self.crcs[(self.flash - 1) % 2].to_le_bytes(),
             _ => false,
         };
         self.bad_responses += usize::from(!ok);
@@ -126,12 +129,12 @@ fn a_thousand_flashes_keep_the_node_memory_bounded() {
     let stop: &'static AtomicBool = Box::leak(Box::new(AtomicBool::new(false)));
     let mut script = Script {
         files: [
-            flash_frames(NODE, &files[0], None),
-            flash_frames(NODE, &files[1], None),
+            sdo_block_download(NODE, PROGRAM_DATA, 1, &files[0]),
+            sdo_block_download(NODE, PROGRAM_DATA, 1, &files[1]),
         ],
         crcs: [CRC32.checksum(&files[0]), CRC32.checksum(&files[1])],
-        activate: flash_command(NODE, 0x04).unwrap(),
-        status: flash_command(NODE, 0x06).unwrap(),
+        activate: sdo_write(NODE, PROGRAM_CONTROL, 1, &[control::START]).unwrap(),
+        status: sdo_read(NODE, PROGRAM_ID, 1).unwrap(),
         flash: 0,
         pos: 0,
         t: 0,

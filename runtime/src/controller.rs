@@ -9,8 +9,10 @@
 //!
 //! The policy is either a file borrowed for `'p` ([`Controller::load_policy`]) or the active slot
 //! of [`PolicySlots`] ([`Controller::attach_slots`]), which the controller then reads on every
-//! evaluation: such a controller takes its frames through [`Controller::on_frame_slots`], which
-//! also serves the flash protocol (transfer, activation, roll-back; `crate::slots`).
+//! evaluation: such a controller takes its frames through [`Controller::on_frame_slots`] and its
+//! time through [`Controller::poll_slots`], which also serve the CANopen SDO server on
+//! `0x600 + node` / `0x580 + node` ([`crate::canopen`]): the communication objects and program
+//! download (CiA 302-3: transfer into the inactive slot, activation, roll-back).
 
 use dex_policy::{FORMAT_VERSION, PolicyView};
 use heapless::Vec;
@@ -21,18 +23,25 @@ use crate::can::messages::{
     ACTION_FRAMES, NMT_ID, NmtCommand, OBS_FRAMES, emcy_frame, encode_action, heartbeat_frame,
     policy_info_frame,
 };
+use crate::canopen::device::{DeviceObjects, DeviceState, Identity};
+use crate::canopen::program::{ProgramObjects, ProgramState};
+use crate::canopen::{SdoFrame, SdoServer};
 use crate::clock::Clock;
 use crate::envelope::{Envelope, EnvelopeConfig, EnvelopeStats};
 use crate::error::{EvalError, LoadError};
-use crate::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM, OBSERVATION_FIELDS};
+use crate::features::{INPUT_MAX, policy_input};
+use crate::interface::{ACT_DIM, CONTROL_PERIOD_US, OBS_DIM};
 use crate::mlp::{Mlp, Network};
 use crate::observation::{FrameOutcome, ObservationAssembler, ObservationFault, check_observation};
-use crate::slots::{
-    FLASH_REQUEST_BASE, FLASH_RESPONSE_BASE, FlashStatus, PolicySlots, Request, SlotCommand,
-    SlotError, end_crc,
-};
+use crate::slots::{PolicySlots, SlotError};
 
-/// Frames to send after one call; 8 slots, and no call produces more than 6.
+/// SDO request identifier base (`+ node`): client to this controller (CiA 301 default SDO).
+pub const SDO_REQUEST_BASE: u16 = 0x600;
+/// SDO response identifier base (`+ node`): this controller to the client.
+pub const SDO_RESPONSE_BASE: u16 = 0x580;
+
+/// Frames to send after one call; 8 slots, and no call produces more than 7 (a poll's 6 and an
+/// SDO timeout's abort).
 pub type Outbox = Vec<CanFrame, 8>;
 
 /// Controller states, in CANopen's spirit.
@@ -204,6 +213,28 @@ pub struct PolicyInfo {
     pub task: u8,
 }
 
+/// The controller's SDO side: the server and what its object dictionary keeps between requests.
+#[derive(Debug, Clone)]
+struct SdoSide {
+    server: SdoServer,
+    device: DeviceState,
+    program: ProgramState,
+}
+
+impl SdoSide {
+    fn new(cfg: &ControllerConfig) -> Self {
+        let heartbeat_ms = u64::from(cfg.heartbeat_cycles) * u64::from(cfg.period_us) / 1000;
+        SdoSide {
+            server: SdoServer::default(),
+            device: DeviceState::new(
+                Identity::default(),
+                u16::try_from(heartbeat_ms).unwrap_or(u16::MAX),
+            ),
+            program: ProgramState::default(),
+        }
+    }
+}
+
 /// Where the controller's policy lives.
 #[derive(Debug, Clone)]
 enum Policy<'p, const WIDTH: usize> {
@@ -240,6 +271,7 @@ pub struct Controller<'p, const WIDTH: usize> {
     bus_off: bool,
     diag: Diagnostics,
     envelope: Envelope,
+    sdo: SdoSide,
 }
 
 impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
@@ -269,7 +301,19 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             bus_off: false,
             diag: Diagnostics::default(),
             envelope: Envelope::new(cfg.envelope, cfg.period_us),
+            sdo: SdoSide::new(&cfg),
         }
+    }
+
+    /// What program download last reported (0x1F57): the result of the last download or
+    /// program control, whether one runs.
+    pub fn program_state(&self) -> &ProgramState {
+        &self.sdo.program
+    }
+
+    /// The communication objects' state: identity, heartbeat time, the emergency history (0x1003).
+    pub fn device_state(&self) -> &DeviceState {
+        &self.sdo.device
     }
 
     /// Current state.
@@ -334,10 +378,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// This controller's checks of a policy file: layout against [`crate::interface`], control
     /// period; capacity is checked when the evaluator is built.
     pub fn check_policy(&self, view: &PolicyView<'_>) -> Result<(), LoadError> {
-        view.check_layout(
-            OBSERVATION_FIELDS.iter().map(|f| (f.name, f.size)),
-            ACTION_JOINTS.iter().map(|j| j.name),
-        )?;
+        crate::features::check_layout(view)?;
         let period = view.body().control_period_us;
         if period != self.cfg.period_us {
             return Err(LoadError::ControlPeriod {
@@ -381,8 +422,8 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         Ok(())
     }
 
-    /// Makes the previous policy of `slots` active again (explicit roll-back, flash request
-    /// `0x07`); refused while operational or when no previous policy is kept.
+    /// Makes the previous policy of `slots` active again (explicit roll-back, program control
+    /// 0x1F51 = 0x80); refused while operational or when no previous policy is kept.
     pub fn roll_back_slot(&mut self, slots: &mut PolicySlots<'_>) -> Result<(), SlotError> {
         if self.state == State::Operational {
             return Err(SlotError::Operational);
@@ -400,59 +441,87 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.announce = true;
     }
 
-    /// [`Controller::on_frame`] for a controller whose policy lives in `slots`: flash requests
-    /// (`0x600 + node`) go to the slots and are answered on `0x580 + node`; every other frame is
+    /// [`Controller::on_frame`] for a controller whose policy lives in `slots`: SDO requests
+    /// (`0x600 + node`) go to the SDO server over the controller's object dictionary
+    /// ([`crate::canopen::device`], program download onto `slots` included) and are answered on
+    /// `0x580 + node` (every refusal an abort with its CiA 301 code); every other frame is
     /// handled as by `on_frame`, evaluating the active slot. A fault in the first evaluation of a
     /// newly activated policy rolls it back (previous slot active again), goes to safe-stop and
     /// sends emergency 0xFF07 (fault `PolicyRolledBack`); NMT start then runs the previous policy.
+    /// NMT reset (node or communication) drops a running SDO transfer without an answer.
     pub fn on_frame_slots(
         &mut self,
         frame: &impl embedded_can::Frame,
         clock: &impl Clock,
         slots: &mut PolicySlots<'_>,
     ) -> Outbox {
-        let request = FLASH_REQUEST_BASE + u16::from(self.cfg.node_id);
+        let request = SDO_REQUEST_BASE + u16::from(self.cfg.node_id);
         match frame.id() {
             embedded_can::Id::Standard(s) if !frame.is_remote_frame() && s.as_raw() == request => {
-                self.on_flash_request(frame.data(), slots)
+                let now_ms = sdo_ms(clock);
+                let mut out = Outbox::new();
+                let response = self.with_sdo(slots, |server, od| {
+                    server.on_request(frame.data(), now_ms, od)
+                });
+                self.push_sdo(response, &mut out);
+                out
+            }
+            embedded_can::Id::Standard(s) if !frame.is_remote_frame() && s.as_raw() == NMT_ID => {
+                let reset = matches!(
+                    (frame.data().first().copied().and_then(NmtCommand::from_code), frame.data().get(1)),
+                    (Some(NmtCommand::ResetNode | NmtCommand::ResetCommunication), Some(&n))
+                        if n == 0 || n == self.cfg.node_id
+                );
+                if reset && self.sdo.server.busy() {
+                    let _ = self.with_sdo(slots, |server, od| {
+                        server.abort(od, crate::canopen::SdoAbort::General)
+                    });
+                }
+                self.frame_in(frame, clock, Some(slots))
             }
             _ => self.frame_in(frame, clock, Some(slots)),
         }
     }
 
-    fn on_flash_request(&mut self, data: &[u8], slots: &mut PolicySlots<'_>) -> Outbox {
-        let mut out = Outbox::new();
-        let bytes = match slots.request(data) {
-            Request::Silent => return out,
-            Request::Respond(b) => b,
-            Request::Command(cmd) => {
-                let status = match cmd {
-                    SlotCommand::Verify => match end_crc(data) {
-                        Some(crc) => match slots
-                            .end(crc, |view, file| self.bind_slot(view, file).map(|_| ()))
-                        {
-                            Ok(()) => FlashStatus::Ok,
-                            Err(s) => s,
-                        },
-                        None => FlashStatus::Format,
-                    },
-                    SlotCommand::Activate => match self.activate_slot(slots) {
-                        Ok(()) => FlashStatus::Ok,
-                        Err(e) => e.status(),
-                    },
-                    SlotCommand::RollBack => match self.roll_back_slot(slots) {
-                        Ok(()) => FlashStatus::Ok,
-                        Err(e) => e.status(),
-                    },
-                };
-                PolicySlots::response(cmd, status)
-            }
-        };
-        let id = FLASH_RESPONSE_BASE + u16::from(self.cfg.node_id);
-        if let Some(f) = CanFrame::standard(id, bytes.as_bytes()) {
-            let _ = out.push(f);
+    /// [`Controller::poll`] for a controller whose policy lives in `slots`: also aborts an SDO
+    /// transfer that has seen no request for the server's timeout (abort 0x0504_0000 on
+    /// `0x580 + node`; a cut program download leaves the active policy as it was).
+    pub fn poll_slots(&mut self, clock: &impl Clock, slots: &mut PolicySlots<'_>) -> Outbox {
+        let mut out = self.poll(clock);
+        if self.sdo.server.busy() {
+            let now_ms = sdo_ms(clock);
+            let response = self.with_sdo(slots, |server, od| server.poll(now_ms, od));
+            self.push_sdo(response, &mut out);
         }
         out
+    }
+
+    /// Runs `f` with the SDO server and the controller's dictionary over `slots`.
+    fn with_sdo<T>(
+        &mut self,
+        slots: &mut PolicySlots<'_>,
+        f: impl FnOnce(&mut SdoServer, &mut DeviceObjects<'_, '_, Self>) -> T,
+    ) -> T {
+        // The dictionary borrows the controller as its host: the SDO side is moved out meanwhile.
+        let mut side = core::mem::replace(&mut self.sdo, SdoSide::new(&self.cfg));
+        let result = {
+            let program = ProgramObjects {
+                slots,
+                host: self,
+                state: &mut side.program,
+            };
+            let mut od = DeviceObjects::new(&mut side.device, program);
+            f(&mut side.server, &mut od)
+        };
+        self.sdo = side;
+        result
+    }
+
+    fn push_sdo(&self, response: Option<SdoFrame>, out: &mut Outbox) {
+        let id = SDO_RESPONSE_BASE + u16::from(self.cfg.node_id);
+        if let Some(f) = response.and_then(|r| CanFrame::standard(id, &r)) {
+            let _ = out.push(f);
+        }
     }
 
     /// Handles one received frame; returns the frames to send (actions when this frame completed an
@@ -700,9 +769,17 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.diag.evaluations = self.diag.evaluations.saturating_add(1);
         let mut action = [0.0f32; ACT_DIM];
         let slot_policy = matches!(policy, Policy::Slot(_));
+        // The observation, and the task features after it for a policy that takes them.
+        let mut input = [0.0f32; INPUT_MAX];
         let result = match (policy, slots.as_deref()) {
-            (Policy::File(mlp), _) => mlp.act(&self.obs, &mut action),
-            (Policy::Slot(net), Some(s)) => net.act(s.active_file(), &self.obs, &mut action),
+            (Policy::File(mlp), _) => {
+                let x = policy_input(&self.obs, mlp.obs_dim(), &mut input);
+                mlp.act(x, &mut action)
+            }
+            (Policy::Slot(net), Some(s)) => {
+                let x = policy_input(&self.obs, net.obs_dim(), &mut input);
+                net.act(s.active_file(), x, &mut action)
+            }
             (Policy::Slot(_), None) => Err(EvalError::PolicyBytes),
         };
         if let Some(s) = slots {
@@ -812,8 +889,12 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.push_emcy_with(fault.emcy_code(), fault, out);
     }
 
-    /// Emergency with `error_code`, `fault`'s fault code and the current state.
+    /// Emergency with `error_code`, `fault`'s fault code and the current state; an error (not
+    /// the error reset 0x0000) is recorded in the pre-defined error field (0x1003).
     fn push_emcy_with(&mut self, error_code: u16, fault: FaultCode, out: &mut Outbox) {
+        if error_code != 0 {
+            self.sdo.device.record_emergency(error_code, fault.code());
+        }
         let f = emcy_frame(
             self.cfg.node_id,
             error_code,
@@ -831,6 +912,11 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         };
         let _ = out.push(policy_info_frame(hash, version, task, &mut self.info_tx));
     }
+}
+
+/// The controller's clock in milliseconds, as the SDO server's timeout reads it (wrapping).
+fn sdo_ms(clock: &impl Clock) -> u32 {
+    (clock.now_us() / 1000) as u32
 }
 
 /// The policy-info fields of a file.

@@ -6,12 +6,13 @@
 //! - [`controller::Controller`] wraps it in a CANopen-style state machine with a watchdog: it takes
 //!   frames ([`embedded_can::Frame`]) and time ([`clock::Clock`]) and returns frames to send.
 //! - [`slots::PolicySlots`] keeps two policy slots in caller-provided regions (flash sectors):
-//!   the segmented CAN transfer writes the inactive one, which is verified before the controller
+//!   CANopen program download writes the inactive one, which is verified before the controller
 //!   activates it; roll-back to the previous policy, by request or after a faulty first evaluation.
 //! - [`can`] holds the frame type, AUTOSAR-E2E-profile-11-style protection and the cell's messages;
 //!   [`interface`] the observation and action layout they carry.
 //! - [`canopen`] holds the CiA 301 pieces of the controller as a device: the SDO server over an
-//!   object dictionary, with CiA 301 abort codes.
+//!   object dictionary, with CiA 301 abort codes, and program download (CiA 302-3) onto the slots;
+//!   the controller serves it on `0x600 + node` ([`Controller::on_frame_slots`]).
 //! - [`seeds`] holds [`seeds::episode_seed`], the start seed of each evaluation episode, shared by
 //!   every program that runs episodes.
 //! - [`aligned`] (`std` only) holds [`aligned::aligned_copy`], the 8-byte-aligned copy of a policy
@@ -36,6 +37,7 @@ pub mod controller;
 pub mod dbc;
 pub mod envelope;
 pub mod error;
+pub mod features;
 mod int8;
 pub mod interface;
 pub mod jaco_kinematics;
@@ -51,4 +53,4 @@ pub use clock::{Clock, MockClock};
 pub use controller::{Controller, ControllerConfig, Diagnostics, FaultCode, Outbox, State};
 pub use error::{EvalError, LoadError};
 pub use mlp::{Mlp, Network};
-pub use slots::{FlashStatus, PolicySlots, SlotError};
+pub use slots::{PolicySlots, SlotError};

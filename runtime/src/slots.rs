@@ -1,9 +1,10 @@
 //! A/B policy slots: two caller-provided byte regions (two flash sectors, two static buffers), one
-//! active, one inactive, and the segmented transfer over CAN that writes the inactive one.
+//! active, one inactive: a transfer (program download over CAN) writes the inactive one.
 //!
 //! - A transfer writes only the inactive slot, so a power cut at any byte of it leaves the active
 //!   slot's bytes, and the active policy, untouched.
-//! - A transferred file is verified before it can be activated: length and transfer CRC, then the
+//! - A transferred file is verified before it can be activated: length (the transport checked the
+//!   bytes: the SDO block download's CRC-16), then the
 //!   policy file's own checks ([`PolicyView::decode`]: magic, version, file CRC, layout hash, full
 //!   decode) and the controller's (layout against [`crate::interface`], capacity, control period).
 //! - Activation ([`crate::Controller::activate_slot`]) is refused in operational and runs between
@@ -23,27 +24,17 @@
 //! written header fails its CRC, and the slot is then empty. On NOR flash the header would live in
 //! its own, separately erased record; here both regions are byte-writable.
 //!
-//! No heap, no unbounded loops: a segment is at most 6 bytes; verification and mounting read each
+//! No heap, no unbounded loops: a write is one SDO segment (at most 7 bytes); verification and mounting read each
 //! file once or twice (CRC and decode), bounded by the region's length.
 //!
-//! # Flash protocol (CAN)
+//! # Program download
 //!
-//! Requests on `0x600 + node` (tool to controller), responses on `0x580 + node`; byte 0 is the
-//! command, a response sets bit 7 (`0x80 | command`) and carries a [`FlashStatus`] in byte 1.
-//!
-//! | request | bytes | response |
-//! |---|---|---|
-//! | `0x01` init | size u32 LE | `0x81 status` |
-//! | `0x02` data | sequence u8, 1..6 data bytes | every [`BLOCK_SEGMENTS`] segments and at the last: `0x82 status seq` |
-//! | `0x03` end | CRC-32/ISO-HDLC of the whole file u32 LE | `0x83 status` (after verification) |
-//! | `0x04` activate | - | `0x84 status` (after the controller loaded the file, or refused it) |
-//! | `0x05` abort | - | `0x85 status` |
-//! | `0x06` status | - | `0x86 transfer-state active-crc u32 LE flags` |
-//! | `0x07` roll back | - | `0x87 status` (the previous slot active again) |
-//!
-//! Transfer state: 0 none (or the inactive slot holds the previous policy), 1 receiving, 2
-//! verified. Flags: bit 0 a previous policy is kept for a roll-back, bit 1 the active policy has
-//! not been evaluated since its activation (a fault in its first evaluation rolls it back).
+//! The slots are written over CAN by CANopen program download (CiA 302-3, object 0x1F50 through
+//! the controller's SDO server: [`crate::canopen::program`]), which calls [`PolicySlots::begin`],
+//! [`PolicySlots::write_at`] for each chunk, [`PolicySlots::finish`] at the end (or
+//! [`PolicySlots::abort`] when the SDO transfer is aborted or times out), and through the
+//! controller [`PolicySlots::activate`] and [`PolicySlots::roll_back`] on program control
+//! (0x1F51).
 
 use core::fmt;
 
@@ -60,14 +51,6 @@ pub static CRC32: Crc<u32> = dex_policy::CRC32;
 pub const SLOT_ALIGN: usize = 8;
 /// Bytes of slot header before the policy file in each region.
 pub const SLOT_HEADER_BYTES: usize = 32;
-/// Data bytes per transfer segment.
-pub const SEGMENT_BYTES: usize = 6;
-/// Segments per acknowledged block.
-pub const BLOCK_SEGMENTS: u32 = 32;
-/// Request identifier base (`+ node`).
-pub const FLASH_REQUEST_BASE: u16 = 0x600;
-/// Response identifier base (`+ node`).
-pub const FLASH_RESPONSE_BASE: u16 = 0x580;
 
 /// The header's magic.
 const MAGIC: [u8; 4] = *b"DXSL";
@@ -75,34 +58,6 @@ const MAGIC: [u8; 4] = *b"DXSL";
 const HEADER_CHECKED: usize = 16;
 /// Header bytes written (the rest is padding).
 const HEADER_WRITTEN: usize = HEADER_CHECKED + 4;
-
-/// Result codes of flash responses (byte 1).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum FlashStatus {
-    /// Accepted.
-    Ok = 0,
-    /// A data segment arrived out of sequence (or empty): the transfer is aborted.
-    Sequence = 1,
-    /// The announced size exceeds the slot or more data came than announced.
-    TooLarge = 2,
-    /// Length or transfer CRC did not match.
-    Crc = 3,
-    /// The file is not a valid policy file.
-    Format = 4,
-    /// The controller refuses the file (layout, capacity, period).
-    Refused = 5,
-    /// Activation or roll-back refused: the controller is operational.
-    Operational = 6,
-    /// Nothing verified to activate.
-    NoImage = 7,
-    /// Data or end without an init.
-    NoTransfer = 8,
-    /// Unknown command.
-    Unknown = 9,
-    /// Roll-back refused: no previous policy is kept.
-    NoPrevious = 10,
-}
 
 /// Why a slot operation failed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -125,6 +80,12 @@ pub enum SlotError {
     Format(FormatError),
     /// The controller refuses the file.
     Refused(LoadError),
+    /// No transfer is under way (a write or an end without [`PolicySlots::begin`]).
+    NoTransfer,
+    /// A write did not continue where the transfer stood: the transfer is abandoned.
+    OutOfOrder,
+    /// The transfer ended before all announced bytes arrived: the transfer is abandoned.
+    Incomplete,
 }
 
 impl fmt::Display for SlotError {
@@ -139,25 +100,14 @@ impl fmt::Display for SlotError {
             SlotError::TooLarge => f.write_str("policy file larger than a slot"),
             SlotError::Format(e) => write!(f, "invalid policy file: {e}"),
             SlotError::Refused(e) => write!(f, "{e}"),
+            SlotError::NoTransfer => f.write_str("no transfer under way"),
+            SlotError::OutOfOrder => f.write_str("transfer bytes out of order"),
+            SlotError::Incomplete => f.write_str("transfer ended before all announced bytes"),
         }
     }
 }
 
 impl core::error::Error for SlotError {}
-
-impl SlotError {
-    /// The flash response status for this error.
-    pub const fn status(&self) -> FlashStatus {
-        match self {
-            SlotError::Operational => FlashStatus::Operational,
-            SlotError::NoImage | SlotError::NoActive => FlashStatus::NoImage,
-            SlotError::NoPrevious => FlashStatus::NoPrevious,
-            SlotError::TooLarge | SlotError::RegionTooSmall => FlashStatus::TooLarge,
-            SlotError::Format(_) | SlotError::Misaligned => FlashStatus::Format,
-            SlotError::Refused(_) => FlashStatus::Refused,
-        }
-    }
-}
 
 /// A committed file in a slot (its header is valid).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -179,59 +129,10 @@ enum Transfer {
     Receiving {
         size: usize,
         written: usize,
-        next_seq: u8,
-        segments: u32,
         digest: Digest<'static, u32>,
     },
     /// A verified file of `size` bytes, CRC `crc`, waits for activation.
     Verified { size: usize, crc: u32 },
-}
-
-/// What a flash request asks of the controller, beyond the slots themselves.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SlotCommand {
-    /// Verify the received file against the controller (`0x03` end, the CRC matched).
-    Verify,
-    /// Activate the verified file (`0x04`).
-    Activate,
-    /// Roll back to the previous policy (`0x07`).
-    RollBack,
-}
-
-/// The outcome of [`PolicySlots::request`]: a response now, or a command for the controller (which
-/// answers it with [`PolicySlots::response`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Request {
-    /// Nothing to send (a data segment inside a block).
-    Silent,
-    /// Send these response bytes.
-    Respond(ResponseBytes),
-    /// The controller must carry out this command, then respond.
-    Command(SlotCommand),
-}
-
-/// Response bytes (at most 7).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ResponseBytes {
-    bytes: [u8; 8],
-    len: u8,
-}
-
-impl ResponseBytes {
-    fn new(data: &[u8]) -> Self {
-        let mut bytes = [0u8; 8];
-        let len = data.len().min(8);
-        bytes[..len].copy_from_slice(&data[..len]);
-        ResponseBytes {
-            bytes,
-            len: len as u8,
-        }
-    }
-
-    /// The bytes to send.
-    pub fn as_bytes(&self) -> &[u8] {
-        &self.bytes[..usize::from(self.len)]
-    }
 }
 
 /// Two policy slots over caller-provided regions; see the module documentation.
@@ -315,7 +216,7 @@ impl<'r> PolicySlots<'r> {
         }
     }
 
-    /// CRC-32 of the active policy file (0 when none), as the status response reports it.
+    /// CRC-32 of the active policy file (0 when none): program software identification (0x1F56).
     pub fn active_crc(&self) -> u32 {
         self.active().map_or(0, |f| f.crc)
     }
@@ -336,7 +237,8 @@ impl<'r> PolicySlots<'r> {
         self.trial
     }
 
-    /// Transfer state as the status response reports it: 0 none, 1 receiving, 2 verified.
+    /// Transfer state: 0 none (or the inactive slot holds the previous policy), 1 receiving, 2
+    /// verified (staged for activation).
     pub fn transfer_state(&self) -> u8 {
         match self.transfer {
             Transfer::Idle => 0,
@@ -377,78 +279,16 @@ impl<'r> PolicySlots<'r> {
         self.transfer = Transfer::Receiving {
             size,
             written: 0,
-            next_seq: 0,
-            segments: 0,
             digest: CRC32.digest(),
         };
         Ok(())
     }
 
-    /// Writes one data segment (`seq`, then 1..=6 bytes) into the inactive slot. `Ok(true)` when
-    /// the segment completes a block or the file (acknowledged), `Ok(false)` inside a block. Any
-    /// error abandons the transfer.
-    pub fn segment(&mut self, seq: u8, payload: &[u8]) -> Result<bool, FlashStatus> {
-        let i = self.inactive_index();
-        let Transfer::Receiving {
-            size,
-            written,
-            next_seq,
-            segments,
-            digest,
-        } = &mut self.transfer
-        else {
-            return Err(FlashStatus::NoTransfer);
-        };
-        if seq != *next_seq || payload.is_empty() || payload.len() > SEGMENT_BYTES {
-            self.transfer = Transfer::Idle;
-            return Err(FlashStatus::Sequence);
-        }
-        let end = *written + payload.len();
-        if end > *size {
-            self.transfer = Transfer::Idle;
-            return Err(FlashStatus::TooLarge);
-        }
-        let dst = &mut self.regions[i][SLOT_HEADER_BYTES + *written..SLOT_HEADER_BYTES + end];
-        dst.copy_from_slice(payload);
-        digest.update(payload);
-        *written = end;
-        *next_seq = next_seq.wrapping_add(1);
-        *segments = segments.saturating_add(1);
-        Ok(segments.is_multiple_of(BLOCK_SEGMENTS) || end == *size)
-    }
-
-    /// Ends the transfer: checks the length and `crc` (CRC-32 of the whole file), decodes the file
-    /// and asks `accept` (the controller's checks) about it. On success the file waits, verified,
-    /// for activation; any failure abandons the transfer.
-    pub fn end(
-        &mut self,
-        crc: u32,
-        accept: impl FnOnce(&PolicyView<'_>, &[u8]) -> Result<(), LoadError>,
-    ) -> Result<(), FlashStatus> {
-        let transfer = core::mem::replace(&mut self.transfer, Transfer::Idle);
-        let Transfer::Receiving {
-            size,
-            written,
-            digest,
-            ..
-        } = transfer
-        else {
-            return Err(FlashStatus::NoTransfer);
-        };
-        if written != size || digest.finalize() != crc {
-            return Err(FlashStatus::Crc);
-        }
-        let file = file_bytes(self.regions[self.inactive_index()], size);
-        let view = PolicyView::decode(file).map_err(|_| FlashStatus::Format)?;
-        accept(&view, file).map_err(|_| FlashStatus::Refused)?;
-        self.transfer = Transfer::Verified { size, crc };
-        Ok(())
-    }
-
     /// Writes bytes `offset..offset + data.len()` of the file being received (a stream: `offset`
-    /// must be what was written so far). For transfers whose integrity the transport checks (the
-    /// SDO program download, [`crate::canopen::program`]); any error abandons the transfer.
-    pub fn write_at(&mut self, offset: usize, data: &[u8]) -> Result<(), FlashStatus> {
+    /// must be what was written so far). The transport checks the bytes' integrity (the SDO block
+    /// download's CRC-16, [`crate::canopen::program`]), the file its own CRC-32 at
+    /// [`PolicySlots::finish`]; any error abandons the transfer.
+    pub fn write_at(&mut self, offset: usize, data: &[u8]) -> Result<(), SlotError> {
         let i = self.inactive_index();
         let Transfer::Receiving {
             size,
@@ -457,16 +297,16 @@ impl<'r> PolicySlots<'r> {
             ..
         } = &mut self.transfer
         else {
-            return Err(FlashStatus::NoTransfer);
+            return Err(SlotError::NoTransfer);
         };
         if offset != *written {
             self.transfer = Transfer::Idle;
-            return Err(FlashStatus::Sequence);
+            return Err(SlotError::OutOfOrder);
         }
         let end = *written + data.len();
         if end > *size {
             self.transfer = Transfer::Idle;
-            return Err(FlashStatus::TooLarge);
+            return Err(SlotError::TooLarge);
         }
         self.regions[i][SLOT_HEADER_BYTES + *written..SLOT_HEADER_BYTES + end]
             .copy_from_slice(data);
@@ -475,19 +315,31 @@ impl<'r> PolicySlots<'r> {
         Ok(())
     }
 
-    /// Ends a transfer written with [`PolicySlots::write_at`]: checks the length, decodes the file
-    /// (its own CRC-32 included) and asks `accept` (the controller's checks) about it, as
-    /// [`PolicySlots::end`] does without a transfer CRC. On success the file waits, verified, for
+    /// Ends the transfer: checks the length, decodes the file (its own CRC-32 included) and asks
+    /// `accept` (the controller's checks) about it. On success the file waits, verified, for
     /// activation; any failure abandons the transfer.
     pub fn finish(
         &mut self,
         accept: impl FnOnce(&PolicyView<'_>, &[u8]) -> Result<(), LoadError>,
-    ) -> Result<(), FlashStatus> {
-        let crc = match &self.transfer {
-            Transfer::Receiving { digest, .. } => digest.clone().finalize(),
-            _ => return Err(FlashStatus::NoTransfer),
+    ) -> Result<(), SlotError> {
+        let transfer = core::mem::replace(&mut self.transfer, Transfer::Idle);
+        let Transfer::Receiving {
+            size,
+            written,
+            digest,
+        } = transfer
+        else {
+            return Err(SlotError::NoTransfer);
         };
-        self.end(crc, accept)
+        if written != size {
+            return Err(SlotError::Incomplete);
+        }
+        let crc = digest.finalize();
+        let file = file_bytes(self.regions[self.inactive_index()], size);
+        let view = PolicyView::decode(file).map_err(SlotError::Format)?;
+        accept(&view, file).map_err(SlotError::Refused)?;
+        self.transfer = Transfer::Verified { size, crc };
+        Ok(())
     }
 
     /// Discards a verified file waiting for activation (or a transfer under way): the inactive
@@ -602,88 +454,6 @@ impl<'r> PolicySlots<'r> {
         self.active()
             .map_or(1, |f| f.generation.wrapping_add(1).max(1))
     }
-
-    /// Handles one flash request's data bytes (the frame on `0x600 + node`). Requests that need
-    /// the controller come back as [`Request::Command`]; the caller carries them out and answers
-    /// with [`PolicySlots::response`].
-    pub fn request(&mut self, data: &[u8]) -> Request {
-        let cmd = data.first().copied().unwrap_or(0);
-        let status = match cmd {
-            0x01 => match data.get(1..5) {
-                Some(s) => {
-                    let size = u32::from_le_bytes([s[0], s[1], s[2], s[3]]) as usize;
-                    match self.begin(size) {
-                        Ok(()) => FlashStatus::Ok,
-                        Err(e) => e.status(),
-                    }
-                }
-                None => {
-                    self.transfer = Transfer::Idle;
-                    FlashStatus::Format
-                }
-            },
-            0x02 => {
-                let seq = data.get(1).copied().unwrap_or(0);
-                let payload = data.get(2..).unwrap_or(&[]);
-                let status = match self.segment(seq, payload) {
-                    Ok(false) => return Request::Silent,
-                    Ok(true) => FlashStatus::Ok,
-                    Err(s) => s,
-                };
-                return Request::Respond(ResponseBytes::new(&[0x82, status as u8, seq]));
-            }
-            0x03 => match (&self.transfer, data.get(1..5)) {
-                (Transfer::Receiving { .. }, Some(_)) => {
-                    return Request::Command(SlotCommand::Verify);
-                }
-                (Transfer::Receiving { .. }, None) => {
-                    self.transfer = Transfer::Idle;
-                    FlashStatus::Format
-                }
-                _ => {
-                    self.transfer = Transfer::Idle;
-                    FlashStatus::NoTransfer
-                }
-            },
-            0x04 => return Request::Command(SlotCommand::Activate),
-            0x05 => {
-                self.abort();
-                FlashStatus::Ok
-            }
-            0x06 => {
-                let c = self.active_crc().to_le_bytes();
-                let flags = u8::from(self.previous().is_some()) | (u8::from(self.trial) << 1);
-                return Request::Respond(ResponseBytes::new(&[
-                    0x86,
-                    self.transfer_state(),
-                    c[0],
-                    c[1],
-                    c[2],
-                    c[3],
-                    flags,
-                ]));
-            }
-            0x07 => return Request::Command(SlotCommand::RollBack),
-            _ => FlashStatus::Unknown,
-        };
-        Request::Respond(ResponseBytes::new(&[0x80 | cmd, status as u8]))
-    }
-
-    /// The response to a [`SlotCommand`] carried out with `status`.
-    pub fn response(command: SlotCommand, status: FlashStatus) -> ResponseBytes {
-        let cmd = match command {
-            SlotCommand::Verify => 0x83,
-            SlotCommand::Activate => 0x84,
-            SlotCommand::RollBack => 0x87,
-        };
-        ResponseBytes::new(&[cmd, status as u8])
-    }
-}
-
-/// The CRC of a verification request (`0x03 crc u32 LE`), if the bytes hold one.
-pub fn end_crc(data: &[u8]) -> Option<u32> {
-    data.get(1..5)
-        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
 }
 
 fn file_bytes(region: &[u8], len: usize) -> &[u8] {

@@ -284,36 +284,98 @@ pub fn action_line(episode: u64, step: usize, action: &[f32]) -> std::string::St
     line
 }
 
-/// The request frames of a flash transfer of `image` to `node` (`crate::slots`): init, the data
-/// segments, end with the image's CRC-32 (or `crc` when given).
-pub fn flash_frames(node: u8, image: &[u8], crc: Option<u32>) -> Vec<crate::can::CanFrame> {
-    use crate::slots::{CRC32, FLASH_REQUEST_BASE, SEGMENT_BYTES};
-    let id = FLASH_REQUEST_BASE + u16::from(node);
+/// The SDO request identifier of `node` (`0x600 + node`).
+fn sdo_request_id(node: u8) -> u16 {
+    crate::controller::SDO_REQUEST_BASE + u16::from(node)
+}
+
+/// The request frames of an SDO block download (CiA 301, with CRC) of `data` into
+/// `index`:`sub` of `node`, as a client sends them to a server that offers block size
+/// [`crate::canopen::sdo::BLOCK_SIZE`] and acknowledges every segment: initiate (size given),
+/// the segments in sub-blocks, end with the CRC-16. `data` must not be empty.
+pub fn sdo_block_download(node: u8, index: u16, sub: u8, data: &[u8]) -> Vec<crate::can::CanFrame> {
+    use crate::canopen::sdo::{BLOCK_CRC, BLOCK_SIZE};
+    let id = sdo_request_id(node);
     let mut out = Vec::new();
-    let size = (image.len() as u32).to_le_bytes();
+    let i = index.to_le_bytes();
+    let size = (data.len() as u32).to_le_bytes();
     out.extend(crate::can::CanFrame::standard(
         id,
-        &[0x01, size[0], size[1], size[2], size[3]],
+        &[0xC6, i[0], i[1], sub, size[0], size[1], size[2], size[3]],
     ));
-    for (n, chunk) in image.chunks(SEGMENT_BYTES).enumerate() {
+    let chunks: Vec<&[u8]> = data.chunks(7).collect();
+    for (k, chunk) in chunks.iter().enumerate() {
         let mut d = [0u8; 8];
-        d[0] = 0x02;
-        d[1] = n as u8;
-        d[2..2 + chunk.len()].copy_from_slice(chunk);
-        out.extend(crate::can::CanFrame::standard(id, &d[..2 + chunk.len()]));
+        let seq = (k % usize::from(BLOCK_SIZE)) as u8 + 1;
+        d[0] = (u8::from(k + 1 == chunks.len()) << 7) | seq;
+        d[1..1 + chunk.len()].copy_from_slice(chunk);
+        out.extend(crate::can::CanFrame::standard(id, &d));
     }
-    let c = crc.unwrap_or_else(|| CRC32.checksum(image)).to_le_bytes();
+    let unused = chunks.last().map_or(0, |c| 7 - c.len()) as u8;
+    let c = BLOCK_CRC.checksum(data).to_le_bytes();
     out.extend(crate::can::CanFrame::standard(
         id,
-        &[0x03, c[0], c[1], c[2], c[3]],
+        &[0xC1 | (unused << 2), c[0], c[1], 0, 0, 0, 0, 0],
     ));
     out
 }
 
-/// A one-byte flash request (`0x04` activate, `0x05` abort, `0x06` status, `0x07` roll back).
-pub fn flash_command(node: u8, command: u8) -> Option<crate::can::CanFrame> {
-    crate::can::CanFrame::standard(
-        crate::slots::FLASH_REQUEST_BASE + u16::from(node),
-        &[command],
-    )
+/// An expedited SDO download of `value` (1 to 4 bytes) into `index`:`sub` of `node`.
+pub fn sdo_write(node: u8, index: u16, sub: u8, value: &[u8]) -> Option<crate::can::CanFrame> {
+    if value.is_empty() || value.len() > 4 {
+        return None;
+    }
+    let i = index.to_le_bytes();
+    let mut d = [
+        0x23 | (((4 - value.len()) as u8) << 2),
+        i[0],
+        i[1],
+        sub,
+        0,
+        0,
+        0,
+        0,
+    ];
+    d[4..4 + value.len()].copy_from_slice(value);
+    crate::can::CanFrame::standard(sdo_request_id(node), &d)
+}
+
+/// An SDO upload request for `index`:`sub` of `node`.
+pub fn sdo_read(node: u8, index: u16, sub: u8) -> Option<crate::can::CanFrame> {
+    let i = index.to_le_bytes();
+    crate::can::CanFrame::standard(sdo_request_id(node), &[0x40, i[0], i[1], sub, 0, 0, 0, 0])
+}
+
+/// The request frames of a program download (CiA 302-3) of `image` to `node`: the block download
+/// into 0x1F50:1 ([`sdo_block_download`]), then program control 0x1F51:1 = 1 (start).
+pub fn program_download(node: u8, image: &[u8]) -> Vec<crate::can::CanFrame> {
+    use crate::canopen::program::{PROGRAM_CONTROL, PROGRAM_DATA, control};
+    let mut out = sdo_block_download(node, PROGRAM_DATA, 1, image);
+    out.extend(sdo_write(node, PROGRAM_CONTROL, 1, &[control::START]));
+    out
+}
+
+/// The abort code of an SDO response's data, if it is an abort (`0x80`).
+pub fn sdo_abort_code(data: &[u8]) -> Option<u32> {
+    crate::canopen::sdo::abort_code(data)
+}
+
+/// A random-weight policy file that takes the task features (`crate::features`): the cell's
+/// observation fields followed by [`crate::features::FEATURE_FIELDS`].
+pub fn jaco_policy_with_features(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
+    let (mut observation, action) = cell_layout();
+    observation.extend(
+        crate::features::FEATURE_FIELDS
+            .iter()
+            .map(|f| (f.name, f.size)),
+    );
+    synth_policy(&SynthSpec {
+        task: Task::Grasp,
+        observation: &observation,
+        action: &action,
+        hidden,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Tanh,
+        seed,
+    })
 }

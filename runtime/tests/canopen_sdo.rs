@@ -143,8 +143,7 @@ fn every_refusal_is_an_abort_with_its_cia_301_code() {
         assert_eq!(abort_code(&r), Some(code), "{req:02x?}");
         assert_eq!(SdoAbort::from_code(code).map(SdoAbort::code), Some(code));
     }
-    // A request with bit 7 set is not mistaken for a reply: 0x84 is a client abort (no answer),
-    // and the old protocol's `84 09` never comes back.
+    // A request with bit 7 set is not mistaken for a reply: 0x84 is a client abort (no answer).
     assert_eq!(send(&mut s, &mut d, request(&[0x84])), None);
     // A segment with no transfer running, and a request shorter than 8 bytes.
     let r = send(&mut s, &mut d, request(&[0x00, 1, 2, 3, 4, 5, 6, 7])).unwrap();

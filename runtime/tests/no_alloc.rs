@@ -91,17 +91,17 @@ fn control_cycles_allocate_nothing(policy: &[u8]) {
 #[test]
 fn flashing_activating_and_running_a_slot_allocate_nothing() {
     use dex_runtime::PolicySlots;
-    use dex_runtime::testkit::{flash_command, flash_frames};
+    use dex_runtime::canopen::program::{PROGRAM_CONTROL, PROGRAM_ID, control};
+    use dex_runtime::testkit::{program_download, sdo_read, sdo_write};
     let old = jaco_policy(&[32], 1).unwrap();
     let new = jaco_policy_int8(&[64, 64], 2).unwrap();
     // Frames built before watching; the regions are caller-provided.
-    let mut frames = flash_frames(0x10, &old, None);
-    frames.push(flash_command(0x10, 0x04).unwrap());
-    let mut second = flash_frames(0x10, &new, None);
-    second.push(flash_command(0x10, 0x04).unwrap());
-    second.push(flash_command(0x10, 0x07).unwrap());
-    second.push(flash_command(0x10, 0x07).unwrap());
-    second.push(flash_command(0x10, 0x06).unwrap());
+    let frames = program_download(0x10, &old);
+    let mut second = program_download(0x10, &new);
+    let roll_back = sdo_write(0x10, PROGRAM_CONTROL, 1, &[control::ROLL_BACK]).unwrap();
+    second.push(roll_back);
+    second.push(roll_back);
+    second.push(sdo_read(0x10, PROGRAM_ID, 1).unwrap());
     let mut a = vec![0u64; 8 * 1024];
     let mut b = vec![0u64; 8 * 1024];
     let trace = observation_trace(64, 8);
@@ -125,7 +125,7 @@ fn flashing_activating_and_running_a_slot_allocate_nothing() {
     controller.on_frame_slots(&nmt_frame(NmtCommand::Start, 0), &clock, &mut slots);
     for cycle in 1..1_000u64 {
         clock.set(cycle * 50_000);
-        controller.poll(&clock);
+        controller.poll_slots(&clock, &mut slots);
         let frames = encode_observation(&trace[(cycle % 64) as usize], cycle as u8, &mut tx);
         for f in &frames {
             controller.on_frame_slots(f, &clock, &mut slots);

@@ -1,5 +1,6 @@
-//! A/B policy slots: transfer into the inactive slot, verification, activation outside operational,
-//! explicit and automatic roll-back, and power cuts at every byte of a transfer and of the commit.
+//! A/B policy slots behind the controller's SDO server (program download, CiA 302-3): transfer
+//! into the inactive slot, verification, activation outside operational, explicit and automatic
+//! roll-back, SDO timeouts, and power cuts at every byte of a transfer and of the commit.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 mod common;
@@ -12,15 +13,18 @@ use dex_runtime::can::messages::{
     ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, NmtCommand, OBS_FRAMES, encode_observation,
     nmt_frame,
 };
+use dex_runtime::canopen::program::{
+    FLASH_STATUS, FlashResult, PROGRAM_CONTROL, PROGRAM_DATA, PROGRAM_ID, control,
+};
+use dex_runtime::controller::SDO_RESPONSE_BASE;
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-use dex_runtime::slots::{CRC32, FLASH_RESPONSE_BASE, SLOT_HEADER_BYTES};
+use dex_runtime::slots::{CRC32, SLOT_HEADER_BYTES};
 use dex_runtime::testkit::{
-    aligned_copy, flash_command, flash_frames, jaco_policy, jaco_policy_faulting, jaco_policy_int8,
-    observation_trace,
+    aligned_copy, jaco_policy, jaco_policy_faulting, jaco_policy_int8, observation_trace,
+    sdo_abort_code, sdo_block_download, sdo_read, sdo_write,
 };
 use dex_runtime::{
-    Controller, ControllerConfig, FaultCode, FlashStatus, Mlp, MockClock, Outbox, PolicySlots,
-    SlotError, State,
+    Controller, ControllerConfig, FaultCode, Mlp, MockClock, Outbox, PolicySlots, SlotError, State,
 };
 use embedded_can::Frame;
 
@@ -31,12 +35,12 @@ type Ctl = Controller<'static, 64>;
 /// Responses on 0x580 + node, as byte vectors.
 fn responses(out: &Outbox) -> Vec<Vec<u8>> {
     out.iter()
-        .filter(|f| f.standard_id() == Some(FLASH_RESPONSE_BASE + u16::from(NODE)))
+        .filter(|f| f.standard_id() == Some(SDO_RESPONSE_BASE + u16::from(NODE)))
         .map(|f| f.data().to_vec())
         .collect()
 }
 
-/// Feeds frames; returns every flash response.
+/// Feeds frames at time 0; returns every SDO response.
 fn feed(c: &mut Ctl, slots: &mut PolicySlots<'_>, frames: &[CanFrame]) -> Vec<Vec<u8>> {
     let clock = MockClock::new(0);
     frames
@@ -45,22 +49,60 @@ fn feed(c: &mut Ctl, slots: &mut PolicySlots<'_>, frames: &[CanFrame]) -> Vec<Ve
         .collect()
 }
 
-fn command(c: &mut Ctl, slots: &mut PolicySlots<'_>, cmd: u8) -> Vec<u8> {
-    let r = feed(c, slots, &[flash_command(NODE, cmd).unwrap()]);
+/// Writes program control (0x1F51:1); `None` when accepted, else the abort code.
+fn command(c: &mut Ctl, slots: &mut PolicySlots<'_>, value: u8) -> Option<u32> {
+    let r = feed(
+        c,
+        slots,
+        &[sdo_write(NODE, PROGRAM_CONTROL, 1, &[value]).unwrap()],
+    );
     assert_eq!(r.len(), 1);
-    r[0].clone()
+    match sdo_abort_code(&r[0]) {
+        Some(code) => Some(code),
+        None => {
+            assert_eq!(r[0][..4], [0x60, 0x51, 0x1F, 1]);
+            None
+        }
+    }
 }
 
-/// Transfers `image` and returns the end status.
-fn transfer(c: &mut Ctl, slots: &mut PolicySlots<'_>, image: &[u8]) -> u8 {
-    let r = feed(c, slots, &flash_frames(NODE, image, None));
-    assert_eq!(r[0], [0x81, 0]);
-    for ack in &r[1..r.len() - 1] {
-        assert_eq!(ack[..2], [0x82, 0]);
-    }
+/// Reads a u32 object (expedited upload).
+fn read_u32(c: &mut Ctl, slots: &mut PolicySlots<'_>, index: u16) -> u32 {
+    let r = feed(c, slots, &[sdo_read(NODE, index, 1).unwrap()]);
+    assert_eq!(r.len(), 1);
+    assert_eq!(r[0][0], 0x43, "upload of {index:#06x}: {:02x?}", r[0]);
+    u32::from_le_bytes([r[0][4], r[0][5], r[0][6], r[0][7]])
+}
+
+/// Flash status (0x1F57:1): (staged, last result).
+fn flash_status(c: &mut Ctl, slots: &mut PolicySlots<'_>) -> (bool, u32) {
+    let w = read_u32(c, slots, FLASH_STATUS);
+    (w & 0x100 != 0, (w >> 1) & 0x7F)
+}
+
+/// An abort request from the client (code 0x0800_0000).
+fn client_abort(index: u16, sub: u8) -> CanFrame {
+    let i = index.to_le_bytes();
+    CanFrame::standard(
+        0x600 + u16::from(NODE),
+        &[0x80, i[0], i[1], sub, 0, 0, 0, 8],
+    )
+    .unwrap()
+}
+
+/// Block-downloads `image` into 0x1F50:1; `None` when verified, else the abort code.
+fn transfer(c: &mut Ctl, slots: &mut PolicySlots<'_>, image: &[u8]) -> Option<u32> {
+    let r = feed(c, slots, &sdo_block_download(NODE, PROGRAM_DATA, 1, image));
+    assert_eq!(r[0][0], 0xA4, "initiate: {:02x?}", r[0]);
     let end = r.last().unwrap();
-    assert_eq!(end[0], 0x83);
-    end[1]
+    if let Some(code) = sdo_abort_code(end) {
+        return Some(code);
+    }
+    for ack in &r[1..r.len() - 1] {
+        assert_eq!(ack[0], 0xA2);
+    }
+    assert_eq!(end[0], 0xA1);
+    None
 }
 
 fn started(slots: &mut PolicySlots<'_>) -> Ctl {
@@ -156,8 +198,9 @@ fn provisioned<'r>(a: &'r mut [u8], b: &'r mut [u8], image: &[u8]) -> (PolicySlo
     let mut slots = PolicySlots::mount(a, b).unwrap();
     assert_eq!(slots.active(), None, "erased storage has no active slot");
     let mut c = Ctl::new(ControllerConfig::default());
-    assert_eq!(transfer(&mut c, &mut slots, image), 0);
-    assert_eq!(command(&mut c, &mut slots, 0x04), [0x84, 0]);
+    c.poll(&MockClock::new(0));
+    assert_eq!(transfer(&mut c, &mut slots, image), None);
+    assert_eq!(command(&mut c, &mut slots, control::START), None);
     (slots, c)
 }
 
@@ -179,26 +222,44 @@ fn transfer_activate_roll_back_and_the_actions_of_each_policy() {
         bits(&reference(&old, 6))
     );
 
-    // Transfer while operational is fine; activation is not.
+    // Operational: a download and a start are refused (0x0800_0022), the policy runs on.
     let clock = MockClock::new(1_000_000);
     c.on_frame_slots(&nmt_frame(NmtCommand::Start, NODE), &clock, &mut slots);
     assert_eq!(c.state(), State::Operational);
-    assert_eq!(transfer(&mut c, &mut slots, &new), 0);
+    let r = feed(
+        &mut c,
+        &mut slots,
+        &sdo_block_download(NODE, PROGRAM_DATA, 1, &new)[..1],
+    );
+    assert_eq!(sdo_abort_code(&r[0]), Some(0x0800_0022));
     assert_eq!(
-        command(&mut c, &mut slots, 0x04),
-        [0x84, FlashStatus::Operational as u8]
+        command(&mut c, &mut slots, control::START),
+        Some(0x0800_0022)
+    );
+    assert_eq!(
+        flash_status(&mut c, &mut slots),
+        (false, FlashResult::Operational as u32)
     );
     assert_eq!(c.policy_info().unwrap().format_version, 1);
     c.on_frame_slots(&nmt_frame(NmtCommand::Stop, NODE), &clock, &mut slots);
-    let status = command(&mut c, &mut slots, 0x06);
-    assert_eq!(status[1], 2, "verified");
-    assert_eq!(status[2..6], CRC32.checksum(&old).to_le_bytes());
-    assert_eq!(command(&mut c, &mut slots, 0x04), [0x84, 0]);
+    assert_eq!(transfer(&mut c, &mut slots, &new), None);
+    assert_eq!(
+        flash_status(&mut c, &mut slots),
+        (true, 0),
+        "verified, staged"
+    );
+    assert_eq!(
+        read_u32(&mut c, &mut slots, PROGRAM_ID),
+        CRC32.checksum(&old)
+    );
+    assert_eq!(command(&mut c, &mut slots, control::START), None);
     assert_eq!(c.policy_info().unwrap().format_version, 2);
-    let status = command(&mut c, &mut slots, 0x06);
-    assert_eq!(status[1], 0);
-    assert_eq!(status[2..6], CRC32.checksum(&new).to_le_bytes());
-    assert_eq!(status[6], 0b11, "previous kept, on trial");
+    assert_eq!(flash_status(&mut c, &mut slots), (false, 0));
+    assert_eq!(
+        read_u32(&mut c, &mut slots, PROGRAM_ID),
+        CRC32.checksum(&new)
+    );
+    assert!(slots.previous().is_some() && slots.on_trial());
     assert_eq!(
         bits(&run(&mut c, &mut slots, 6, 2_000_000)),
         bits(&reference(&new, 6))
@@ -206,20 +267,26 @@ fn transfer_activate_roll_back_and_the_actions_of_each_policy() {
     assert!(!slots.on_trial(), "evaluated: no longer on trial");
 
     // Explicit roll-back, and back again: the slots swap, no bytes move.
-    assert_eq!(command(&mut c, &mut slots, 0x07), [0x87, 0]);
+    assert_eq!(command(&mut c, &mut slots, control::ROLL_BACK), None);
     assert_eq!(slots.active_crc(), CRC32.checksum(&old));
     assert_eq!(
         bits(&run(&mut c, &mut slots, 6, 3_000_000)),
         bits(&reference(&old, 6))
     );
-    assert_eq!(command(&mut c, &mut slots, 0x07), [0x87, 0]);
+    assert_eq!(command(&mut c, &mut slots, control::ROLL_BACK), None);
     assert_eq!(slots.active_crc(), CRC32.checksum(&new));
     // A new transfer discards the previous policy: nothing to roll back to.
-    let r = feed(&mut c, &mut slots, &flash_frames(NODE, &old, None)[..3]);
-    assert_eq!(r, vec![vec![0x81, 0]]);
+    let r = feed(
+        &mut c,
+        &mut slots,
+        &sdo_block_download(NODE, PROGRAM_DATA, 1, &old)[..3],
+    );
+    assert_eq!(r, vec![vec![0xA4, 0x50, 0x1F, 1, 127, 0, 0, 0]]);
+    // (Inside a sub-block every frame is a segment: the client aborts the download first.)
+    feed(&mut c, &mut slots, &[client_abort(PROGRAM_DATA, 1)]);
     assert_eq!(
-        command(&mut c, &mut slots, 0x07),
-        [0x87, FlashStatus::NoPrevious as u8]
+        command(&mut c, &mut slots, control::ROLL_BACK),
+        Some(0x0800_0024)
     );
     assert_eq!(slots.active_crc(), CRC32.checksum(&new));
 
@@ -241,23 +308,28 @@ fn bad_transfers_and_refused_files_leave_the_active_slot() {
     let (mut ra, mut rb) = regions();
     let (mut slots, mut c) = provisioned(bytes(&mut ra), bytes(&mut rb), &old);
     let old_crc = CRC32.checksum(&old);
-    // Corrupt segment (the transfer CRC catches it).
-    let mut frames = flash_frames(NODE, &new, Some(CRC32.checksum(&new)));
+    // A corrupt segment: the block download's CRC-16 catches it (0x0504_0004).
+    let mut frames = sdo_block_download(NODE, PROGRAM_DATA, 1, &new);
     let mid = frames.len() / 2;
     let mut d = frames[mid].data().to_vec();
     d[4] ^= 0x10;
     frames[mid] = CanFrame::standard(frames[mid].standard_id().unwrap(), &d).unwrap();
     let r = feed(&mut c, &mut slots, &frames);
-    assert_eq!(r.last().unwrap(), &[0x83, FlashStatus::Crc as u8]);
-    // A corrupt file with a matching transfer CRC (the file's own CRC catches it).
+    assert_eq!(sdo_abort_code(r.last().unwrap()), Some(0x0504_0004));
+    assert_eq!(
+        flash_status(&mut c, &mut slots),
+        (false, FlashResult::Aborted as u32)
+    );
+    // A corrupt file sent intact (the file's own CRC catches it): 0x0800_0020.
     let mut bad = new.clone();
     let k = bad.len() / 2;
     bad[k] ^= 0x40;
+    assert_eq!(transfer(&mut c, &mut slots, &bad), Some(0x0800_0020));
     assert_eq!(
-        transfer(&mut c, &mut slots, &bad),
-        FlashStatus::Format as u8
+        flash_status(&mut c, &mut slots),
+        (false, FlashResult::Format as u32)
     );
-    // A valid file on another layout.
+    // A valid file on another layout: refused by the controller, 0x0800_0020.
     let other = {
         let (mut body, values) = dex_policy::synth::synth_parts(&dex_policy::synth::SynthSpec {
             task: dex_policy::Task::Stack,
@@ -272,31 +344,79 @@ fn bad_transfers_and_refused_files_leave_the_active_slot() {
         body.control_period_us = 50_000;
         dex_policy::encode_to_vec(&body, &values).unwrap()
     };
+    assert_eq!(transfer(&mut c, &mut slots, &other), Some(0x0800_0020));
     assert_eq!(
-        transfer(&mut c, &mut slots, &other),
-        FlashStatus::Refused as u8
+        flash_status(&mut c, &mut slots),
+        (false, FlashResult::Refused as u32)
     );
-    // Too large; out of sequence; data without init.
-    let size = (REGION as u32).to_le_bytes();
-    let init = CanFrame::standard(0x610, &[1, size[0], size[1], size[2], size[3]]).unwrap();
-    assert_eq!(
-        feed(&mut c, &mut slots, &[init]),
-        vec![vec![0x81, FlashStatus::TooLarge as u8]]
+    // Too large: refused at the initiate (0x0607_0012).
+    let r = feed(
+        &mut c,
+        &mut slots,
+        &sdo_block_download(NODE, PROGRAM_DATA, 1, &vec![0u8; REGION])[..1],
     );
-    let frames = flash_frames(NODE, &new, None);
-    let r = feed(&mut c, &mut slots, &[frames[0], frames[1], frames[3]]);
-    assert_eq!(r[1], [0x82, FlashStatus::Sequence as u8, 2]);
-    let r = feed(&mut c, &mut slots, &[frames[5]]);
-    assert_eq!(r[0], [0x82, FlashStatus::NoTransfer as u8, 4]);
+    assert_eq!(sdo_abort_code(&r[0]), Some(0x0607_0012));
+    // A segment lost in a sub-block: its acknowledgement names the last segment received in
+    // order, so the client repeats from there.
+    let frames = sdo_block_download(NODE, PROGRAM_DATA, 1, &new);
+    assert!(frames.len() > 130, "more than one sub-block");
+    let mut sub = vec![frames[0], frames[1]];
+    sub.extend_from_slice(&frames[3..=127]);
+    let r = feed(&mut c, &mut slots, &sub);
+    assert_eq!(r.len(), 2, "{r:02x?}");
+    assert_eq!(r[1], [0xA2, 1, 127, 0, 0, 0, 0, 0]);
+    // The client aborts (no answer); a segment with no transfer is an unknown command.
+    assert!(feed(&mut c, &mut slots, &[client_abort(PROGRAM_DATA, 1)]).is_empty());
+    let r = feed(&mut c, &mut slots, &[frames[2]]);
+    assert_eq!(sdo_abort_code(&r[0]), Some(0x0504_0001));
     assert_eq!(
-        command(&mut c, &mut slots, 0x04),
-        [0x84, FlashStatus::NoImage as u8]
+        command(&mut c, &mut slots, control::START),
+        Some(0x0800_0024)
     );
     assert_eq!(slots.active_crc(), old_crc);
+    assert_eq!(command(&mut c, &mut slots, 0x09), Some(0x0609_0030));
+}
+
+#[test]
+fn a_silent_client_is_aborted_at_the_controllers_clock_and_the_old_policy_stays() {
+    let old = jaco_policy(&[16], 1).unwrap();
+    let new = jaco_policy(&[8, 8], 2).unwrap();
+    let (mut ra, mut rb) = regions();
+    let (mut slots, mut c) = provisioned(bytes(&mut ra), bytes(&mut rb), &old);
+    let frames = sdo_block_download(NODE, PROGRAM_DATA, 1, &new);
+    feed(&mut c, &mut slots, &frames[..40]);
+    // The SDO server's timeout runs on the controller's clock, through poll_slots.
+    let out = c.poll_slots(&MockClock::new(500_000), &mut slots);
+    assert!(responses(&out).is_empty(), "not yet");
+    let out = c.poll_slots(&MockClock::new(1_100_000), &mut slots);
+    let r = responses(&out);
+    assert_eq!(r.len(), 1);
+    assert_eq!(r[0][..4], [0x80, 0x50, 0x1F, 1]);
+    assert_eq!(sdo_abort_code(&r[0]), Some(0x0504_0000));
     assert_eq!(
-        command(&mut c, &mut slots, 0x09),
-        [0x89, FlashStatus::Unknown as u8]
+        flash_status(&mut c, &mut slots),
+        (false, FlashResult::Aborted as u32)
     );
+    assert_eq!(slots.active_crc(), CRC32.checksum(&old));
+    assert_eq!(
+        command(&mut c, &mut slots, control::START),
+        Some(0x0800_0024)
+    );
+    // NMT reset communication also drops a running download (no answer).
+    feed(&mut c, &mut slots, &frames[..40]);
+    let r = feed(
+        &mut c,
+        &mut slots,
+        &[nmt_frame(NmtCommand::ResetCommunication, NODE)],
+    );
+    assert!(r.is_empty());
+    assert_eq!(
+        flash_status(&mut c, &mut slots),
+        (false, FlashResult::Aborted as u32)
+    );
+    // The emergencies the controller sent are in 0x1003 (none so far), read over the same server.
+    let r = feed(&mut c, &mut slots, &[sdo_read(NODE, 0x1003, 0).unwrap()]);
+    assert_eq!(r[0][..5], [0x4F, 0x03, 0x10, 0, 0]);
 }
 
 #[test]
@@ -308,10 +428,10 @@ fn a_policy_whose_first_evaluation_faults_is_rolled_back_with_emcy_0xff07() {
     c.attach_slots(&slots).unwrap();
     assert_eq!(
         transfer(&mut c, &mut slots, &faulty),
-        0,
+        None,
         "it verifies: it loads"
     );
-    assert_eq!(command(&mut c, &mut slots, 0x04), [0x84, 0]);
+    assert_eq!(command(&mut c, &mut slots, control::START), None);
     assert!(slots.on_trial());
     let clock = MockClock::new(0);
     c.poll(&clock);
@@ -339,6 +459,9 @@ fn a_policy_whose_first_evaluation_faults_is_rolled_back_with_emcy_0xff07() {
     assert_eq!(slots.active_crc(), CRC32.checksum(&old));
     assert!(!slots.on_trial());
     assert_eq!(slots.previous(), None, "the faulty policy is not kept");
+    // The emergency is in the error history (0x1003:1: fault code 7, error code 0xFF07).
+    let r = feed(&mut c, &mut slots, &[sdo_read(NODE, 0x1003, 1).unwrap()]);
+    assert_eq!(r[0][4..8], 0x0007_FF07u32.to_le_bytes());
     // NMT start runs the old policy again, bit for bit.
     let got = run(&mut c, &mut slots, 4, 1_000_000);
     assert_eq!(bits(&got), bits(&reference(&old, 4)));
@@ -381,9 +504,9 @@ fn a_power_cut_at_every_byte_of_a_transfer_leaves_the_active_slot_running() {
         let (mut slots, mut c) = provisioned(bytes(&mut ra), bytes(&mut rb), &old);
         // A previous transfer of `new` completed into the other slot and rolled back to: both
         // slots valid, so the cut transfer overwrites a slot that held a policy.
-        assert_eq!(transfer(&mut c, &mut slots, &new), 0);
-        assert_eq!(command(&mut c, &mut slots, 0x04), [0x84, 0]);
-        assert_eq!(command(&mut c, &mut slots, 0x07), [0x87, 0]);
+        assert_eq!(transfer(&mut c, &mut slots, &new), None);
+        assert_eq!(command(&mut c, &mut slots, control::START), None);
+        assert_eq!(command(&mut c, &mut slots, control::ROLL_BACK), None);
         assert_eq!(slots.active_crc(), CRC32.checksum(&old));
     }
     let active_before = (ra.clone(), rb.clone());
@@ -392,21 +515,18 @@ fn a_power_cut_at_every_byte_of_a_transfer_leaves_the_active_slot_running() {
         s.active_index().unwrap()
     };
     let expect = bits(&reference(&old, 2));
-    let frames = flash_frames(NODE, &new, None);
+    let frames = sdo_block_download(NODE, PROGRAM_DATA, 1, &new);
     for cut in 0..=new.len() {
         let (mut a, mut b) = active_before.clone();
         {
             let mut slots = PolicySlots::mount(bytes(&mut a), bytes(&mut b)).unwrap();
             let mut c = Ctl::new(ControllerConfig::default());
             feed(&mut c, &mut slots, &frames[..1]);
-            let full = cut / 6;
+            let full = cut / 7;
             feed(&mut c, &mut slots, &frames[1..1 + full]);
-            if cut % 6 != 0 {
+            if cut % 7 != 0 {
                 // The power fails inside a segment's write: only its first bytes land.
-                let f = frames[1 + full];
-                let partial =
-                    CanFrame::standard(f.standard_id().unwrap(), &f.data()[..2 + cut % 6]);
-                feed(&mut c, &mut slots, &[partial.unwrap()]);
+                let _ = slots.write_at(full * 7, &frames[1 + full].data()[1..1 + cut % 7]);
             }
         } // power cut: RAM state gone
         let active_region = |a: &[u64], b: &[u64]| if which == 0 { a.to_vec() } else { b.to_vec() };
@@ -438,14 +558,14 @@ fn a_power_cut_at_every_byte_of_the_commit_activates_all_or_nothing() {
     {
         let mut slots = PolicySlots::mount(bytes(&mut before.0), bytes(&mut before.1)).unwrap();
         let mut c = Ctl::new(ControllerConfig::default());
-        assert_eq!(transfer(&mut c, &mut slots, &new), 0);
+        assert_eq!(transfer(&mut c, &mut slots, &new), None);
     }
     let mut after = before.clone();
     {
         let mut slots = PolicySlots::mount(bytes(&mut after.0), bytes(&mut after.1)).unwrap();
         let mut c = Ctl::new(ControllerConfig::default());
-        assert_eq!(transfer(&mut c, &mut slots, &new), 0);
-        assert_eq!(command(&mut c, &mut slots, 0x04), [0x84, 0]);
+        assert_eq!(transfer(&mut c, &mut slots, &new), None);
+        assert_eq!(command(&mut c, &mut slots, control::START), None);
     }
     // The commit writes only the inactive slot's header.
     assert_eq!(before.0, after.0);

@@ -20,7 +20,7 @@ use super::run::Run;
 use super::{PERIOD, WIDTH, stats};
 
 const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
-/// Bytes per flash data segment (CANopen SDO-block style, as `hil-sim`'s flash server).
+/// Bytes per staged data segment (how far one `FlashData` segment moves the staged file).
 const SEGMENT_BYTES: usize = 6;
 /// Staging buffers per input for verified files that differ from every prepared one.
 const POOL_SLOTS: usize = 4;

@@ -87,6 +87,41 @@ impl SdoAbort {
         }
     }
 
+    /// What the code means (the wording of CiA 301's table, shortened).
+    pub const fn description(self) -> &'static str {
+        match self {
+            SdoAbort::ToggleBit => "toggle bit not alternated",
+            SdoAbort::Timeout => "SDO protocol timed out",
+            SdoAbort::UnknownCommand => "client/server command specifier not valid or unknown",
+            SdoAbort::InvalidBlockSize => "invalid block size",
+            SdoAbort::InvalidSequence => "invalid sequence number",
+            SdoAbort::Crc => "CRC error",
+            SdoAbort::OutOfMemory => "out of memory",
+            SdoAbort::UnsupportedAccess => "unsupported access to an object",
+            SdoAbort::WriteOnly => "attempt to read a write-only object",
+            SdoAbort::ReadOnly => "attempt to write a read-only object",
+            SdoAbort::NoObject => "object does not exist in the object dictionary",
+            SdoAbort::Hardware => "access failed due to a hardware error",
+            SdoAbort::LengthMismatch => "length of service parameter does not match",
+            SdoAbort::TooLong => "length of service parameter too high",
+            SdoAbort::TooShort => "length of service parameter too low",
+            SdoAbort::NoSubIndex => "sub-index does not exist",
+            SdoAbort::InvalidValue => "invalid value for parameter",
+            SdoAbort::ValueTooHigh => "value of parameter written too high",
+            SdoAbort::ValueTooLow => "value of parameter written too low",
+            SdoAbort::General => "general error",
+            SdoAbort::CannotStore => "data cannot be transferred or stored to the application",
+            SdoAbort::LocalControl => {
+                "data cannot be transferred or stored to the application because of local control"
+            }
+            SdoAbort::DeviceState => {
+                "data cannot be transferred or stored to the application because of the present \
+                 device state"
+            }
+            SdoAbort::NoData => "no data available",
+        }
+    }
+
     /// The abort with wire code `code`, if it is one of these.
     pub fn from_code(code: u32) -> Option<SdoAbort> {
         ALL.into_iter().find(|a| a.code() == code)

@@ -27,7 +27,7 @@ use dex_policy::PolicyView;
 use super::abort::SdoAbort;
 use super::od::{Access, Entry, ObjectDictionary, read_value};
 use crate::error::LoadError;
-use crate::slots::{FlashStatus, PolicySlots, SlotError};
+use crate::slots::{PolicySlots, SlotError};
 
 /// Program data.
 pub const PROGRAM_DATA: u16 = 0x1F50;
@@ -137,14 +137,21 @@ pub const fn is_program_object(index: u16) -> bool {
     )
 }
 
-fn flash_result(status: FlashStatus) -> FlashResult {
-    match status {
-        FlashStatus::Format | FlashStatus::Crc => FlashResult::Format,
-        FlashStatus::Refused => FlashResult::Refused,
-        FlashStatus::TooLarge | FlashStatus::Sequence => FlashResult::TooLarge,
-        FlashStatus::Operational => FlashResult::Operational,
-        FlashStatus::NoImage | FlashStatus::NoPrevious => FlashResult::NoProgram,
-        FlashStatus::Ok | FlashStatus::NoTransfer | FlashStatus::Unknown => FlashResult::Aborted,
+impl FlashResult {
+    /// The result a slot error leaves in 0x1F57.
+    pub const fn of(e: &SlotError) -> FlashResult {
+        match e {
+            SlotError::Format(_) | SlotError::Misaligned => FlashResult::Format,
+            SlotError::Refused(_) => FlashResult::Refused,
+            SlotError::TooLarge | SlotError::RegionTooSmall => FlashResult::TooLarge,
+            SlotError::Operational => FlashResult::Operational,
+            SlotError::NoImage | SlotError::NoPrevious | SlotError::NoActive => {
+                FlashResult::NoProgram
+            }
+            SlotError::NoTransfer | SlotError::OutOfOrder | SlotError::Incomplete => {
+                FlashResult::Aborted
+            }
+        }
     }
 }
 
@@ -161,7 +168,7 @@ impl<H: ProgramHost> ProgramObjects<'_, '_, H> {
             SlotError::NoImage | SlotError::NoPrevious | SlotError::NoActive => SdoAbort::NoData,
             _ => SdoAbort::CannotStore,
         };
-        self.fail(flash_result(e.status()), abort)
+        self.fail(FlashResult::of(&e), abort)
     }
 
     fn control(&mut self, value: u8) -> Result<(), SdoAbort> {
@@ -263,9 +270,13 @@ impl<H: ProgramHost> ObjectDictionary for ProgramObjects<'_, '_, H> {
             self.state.control = data.first().copied();
             return Ok(());
         }
-        self.slots
-            .write_at(offset as usize, data)
-            .map_err(|s| self.fail(flash_result(s), SdoAbort::TooLong))
+        self.slots.write_at(offset as usize, data).map_err(|e| {
+            let abort = match e {
+                SlotError::TooLarge => SdoAbort::TooLong,
+                _ => SdoAbort::General,
+            };
+            self.fail(FlashResult::of(&e), abort)
+        })
     }
 
     fn end_write(&mut self, index: u16, sub: u8, total: u32) -> Result<(), SdoAbort> {
@@ -279,7 +290,7 @@ impl<H: ProgramHost> ObjectDictionary for ProgramObjects<'_, '_, H> {
                         self.state.result = FlashResult::Ok;
                         Ok(())
                     }
-                    Err(s) => Err(self.fail(flash_result(s), SdoAbort::CannotStore)),
+                    Err(e) => Err(self.fail(FlashResult::of(&e), SdoAbort::CannotStore)),
                 }
             }
             (PROGRAM_CONTROL, 1) => match (self.state.control.take(), total) {

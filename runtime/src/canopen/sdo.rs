@@ -50,6 +50,14 @@ pub fn abort_frame(index: u16, sub: u8, abort: SdoAbort) -> SdoFrame {
     f
 }
 
+/// The abort code of an SDO frame's data, if it is an abort (`0x80` and 8 bytes).
+pub fn abort_code(data: &[u8]) -> Option<u32> {
+    match data {
+        [0x80, _, _, _, a, b, c, d] => Some(u32::from_le_bytes([*a, *b, *c, *d])),
+        _ => None,
+    }
+}
+
 fn reply(command: u8, index: u16, sub: u8, data: [u8; 4]) -> SdoFrame {
     let mut f = [0u8; 8];
     f[0] = command;
@@ -109,6 +117,16 @@ pub struct SdoServer {
     last_request_ms: u32,
     /// Time without a request after which [`SdoServer::poll`] aborts a running transfer.
     pub timeout_ms: u32,
+}
+
+impl core::fmt::Debug for SdoServer {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("SdoServer")
+            .field("current", &self.current())
+            .field("last_request_ms", &self.last_request_ms)
+            .field("timeout_ms", &self.timeout_ms)
+            .finish()
+    }
 }
 
 impl Default for SdoServer {
