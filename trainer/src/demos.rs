@@ -14,6 +14,7 @@
 
 use std::path::Path;
 
+use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
 use serde::{Deserialize, Serialize};
 
@@ -532,11 +533,14 @@ impl DemoSet {
 /// The transitions of `sets` as the learner's demonstration buffer for a run of `task` under
 /// `reward`. Each set must be of `task` or one it learns from ([`Task::learns_from`]) and its rows
 /// must carry `reward` ([`RecordSettings::row_reward`]: record with the reward the run trains with).
-/// The critic learns from the executed actions; the cloning term targets the labels.
+/// The critic learns from the executed actions; the cloning term targets the labels. With
+/// `features` the observations carry the task features after them, as the run's networks take
+/// them (`TrainSettings::features`).
 pub fn demo_buffer(
     sets: &[(DemoSet, std::path::PathBuf)],
     task: Task,
     reward: crate::env::Reward,
+    features: bool,
 ) -> Result<crate::learn::DemoBuffer, DemoError> {
     for (set, path) in sets {
         let recorded: Option<Task> = set.header.task.parse().ok();
@@ -561,18 +565,39 @@ pub fn demo_buffer(
             });
         }
     }
-    let rows: Vec<crate::learn::DemoTransition<'_>> = sets
-        .iter()
-        .flat_map(|(s, _)| &s.rows)
-        .map(|r| crate::learn::DemoTransition {
-            obs: &r.obs,
-            executed: &r.executed,
-            label: &r.label,
-            reward: r.reward,
-            next_obs: &r.next_obs,
-            terminal: false,
+    let all = || sets.iter().flat_map(|(s, _)| &s.rows);
+    // With the task features, each row's observations as the networks take them (owned here,
+    // borrowed by the rows below).
+    let featured: Vec<([f32; INPUT_MAX], [f32; INPUT_MAX])> = if features {
+        all()
+            .map(|r| {
+                let mut pair = ([0.0; INPUT_MAX], [0.0; INPUT_MAX]);
+                policy_input(&r.obs, INPUT_MAX, &mut pair.0);
+                policy_input(&r.next_obs, INPUT_MAX, &mut pair.1);
+                pair
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let rows: Vec<crate::learn::DemoTransition<'_>> = all()
+        .enumerate()
+        .map(|(i, r)| {
+            let (obs, next_obs): (&[f32], &[f32]) = match featured.get(i) {
+                Some((o, n)) => (o, n),
+                None => (&r.obs, &r.next_obs),
+            };
+            crate::learn::DemoTransition {
+                obs,
+                executed: &r.executed,
+                label: &r.label,
+                reward: r.reward,
+                next_obs,
+                terminal: false,
+            }
         })
         .collect();
-    crate::learn::DemoBuffer::from_rows(OBS_DIM, ACT_DIM, &rows)
+    let dim = if features { INPUT_MAX } else { OBS_DIM };
+    crate::learn::DemoBuffer::from_rows(dim, ACT_DIM, &rows)
         .map_err(|e| DemoError::Settings(e.to_string()))
 }

@@ -1,5 +1,6 @@
 //! The Jaco environment seen through the learner's [`Env`] trait.
 
+use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
 use crate::env::{
@@ -32,6 +33,8 @@ pub struct JacoLearnEnv {
     pub last_error: Option<EnvError>,
     /// The teacher of a run with teacher labels: the Markov demonstrator of the task.
     teacher: MarkovDemonstrator,
+    /// Observations carry the task features after them (`dex_runtime::features`).
+    features: bool,
 }
 
 impl JacoLearnEnv {
@@ -46,7 +49,23 @@ impl JacoLearnEnv {
             errors: 0,
             last_error: None,
             teacher: MarkovDemonstrator::new(config.task),
+            features: false,
         }
+    }
+
+    /// The same environment, its observations followed by the controller's task features
+    /// (`dex_runtime::features`) when `features`: what a policy that takes them sees.
+    pub fn with_features(mut self, features: bool) -> Self {
+        self.features = features;
+        self
+    }
+
+    /// Writes `o` (and its task features, when on) into the learner's observation buffer.
+    fn write_obs(&self, o: &Observation, obs: &mut [f32]) {
+        let mut buf = [0.0f32; INPUT_MAX];
+        let x = policy_input(o, self.obs_dim(), &mut buf);
+        let n = obs.len().min(x.len());
+        obs[..n].copy_from_slice(&x[..n]);
     }
 
     /// An environment whose training episodes start under `scheme` (scripted demonstrations).
@@ -91,8 +110,7 @@ impl JacoLearnEnv {
         for _ in 0..8 {
             match make(&mut self.env, &mut self.starts, rng.next_u64()) {
                 Ok(o) => {
-                    let n = obs.len().min(OBS_DIM);
-                    obs[..n].copy_from_slice(&o[..n]);
+                    self.write_obs(&o, obs);
                     return;
                 }
                 Err(e) => {
@@ -118,7 +136,7 @@ impl JacoLearnEnv {
 
 impl Env for JacoLearnEnv {
     fn obs_dim(&self) -> usize {
-        OBS_DIM
+        if self.features { INPUT_MAX } else { OBS_DIM }
     }
 
     fn act_dim(&self) -> usize {
@@ -152,8 +170,7 @@ impl Env for JacoLearnEnv {
         a[..n].copy_from_slice(&action[..n]);
         match self.env.step(&a) {
             Ok(out) => {
-                let m = obs.len().min(OBS_DIM);
-                obs[..m].copy_from_slice(&out.observation[..m]);
+                self.write_obs(&out.observation, obs);
                 Step {
                     reward: out.reward,
                     terminal: false,

@@ -14,7 +14,7 @@
 //! observations inside it).
 
 use dex_policy::{LayerDtype, PolicyView};
-use dex_runtime::interface::{ACTION_JOINTS, OBSERVATION_FIELDS};
+use dex_runtime::interface::ACTION_JOINTS;
 
 use crate::env::Task;
 use crate::learn::nets::{Activation, Mlp};
@@ -62,6 +62,17 @@ pub enum ImportError {
         file: String,
         /// The actor's.
         actor: String,
+    },
+    /// The file takes the task features and the run does not, or the other way round.
+    #[error(
+        "the policy file {} the task features and the run {}: set `features = {file}` \
+         (`trainer train --features`) to match the file",
+        if *file { "takes" } else { "does not take" },
+        if *file { "does not" } else { "does" }
+    )]
+    Features {
+        /// Whether the file takes them.
+        file: bool,
     },
     /// The actor has layer normalisation, which a policy file has no parameters for.
     #[error("the run's actor has layer normalisation; a policy file has no parameters for it")]
@@ -139,11 +150,17 @@ pub fn normalised_actor_from_policy(
 fn read(file: &[u8], task: Task, actor: &Mlp, fold: bool) -> Result<NormalisedActor, ImportError> {
     let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = PolicyView::decode(aligned.as_bytes())?;
-    view.check_layout(
-        OBSERVATION_FIELDS.iter().map(|f| (f.name, f.size)),
-        ACTION_JOINTS.iter().map(|j| j.name),
-    )?;
+    dex_runtime::features::check_layout(&view)?;
     let body = view.body();
+    let (file_features, run_features) = (
+        dex_runtime::features::takes_features(body.obs_dim()),
+        dex_runtime::features::takes_features(actor.input_dim()),
+    );
+    if file_features != run_features {
+        return Err(ImportError::Features {
+            file: file_features,
+        });
+    }
     let run = crate::export::task_code(task);
     if body.task != run {
         return Err(ImportError::Task {

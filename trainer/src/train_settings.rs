@@ -299,6 +299,10 @@ pub struct TrainSettings {
     /// `obs_norm` off the file's normalisation is folded into the first layer, with
     /// `obs_norm.enabled` and `obs_norm.frozen_from_init` it becomes the run's frozen normaliser).
     pub init_policy: Option<PathBuf>,
+    /// The actor and the critic also take the controller's task features after the observation
+    /// (`dex_runtime::features`; `--features`); the exported file lists them, the runtime
+    /// computes them. An `init_policy` must agree.
+    pub features: bool,
     /// The learner.
     pub run: RunConfig,
 }
@@ -387,6 +391,7 @@ impl Default for TrainSettings {
             record_demos: 0,
             demo_noise: 0.1,
             init_policy: None,
+            features: false,
             run,
         }
     }
@@ -468,6 +473,15 @@ pub fn load(path: Option<&Path>) -> Result<TrainSettings, SettingsError> {
 }
 
 impl TrainSettings {
+    /// Width of the networks' input: the observation, and the task features when `features`.
+    pub fn input_dim(&self) -> usize {
+        if self.features {
+            dex_runtime::features::INPUT_MAX
+        } else {
+            dex_runtime::interface::OBS_DIM
+        }
+    }
+
     /// Checks what the learner does not check itself.
     pub fn validate(&self) -> Result<(), SettingsError> {
         if self.seeds.is_empty() {

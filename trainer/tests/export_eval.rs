@@ -6,6 +6,7 @@ use std::sync::atomic::AtomicBool;
 
 use dex_policy::PolicyView;
 use dex_runtime::Mlp;
+use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
 use dex_runtime::testkit::aligned_copy;
 use dex_trainer::env::{EnvConfig, JacoEnv, Reward, Scene, Task};
@@ -15,6 +16,11 @@ use dex_trainer::jaco::JacoLearnEnv;
 use dex_trainer::learn::{RunConfig, Trainer};
 
 fn tiny_run(seed: u64) -> (Trainer, Vec<u8>) {
+    tiny_run_with(seed, false)
+}
+
+/// A tiny Reach run; with `features` its networks take the task features too.
+fn tiny_run_with(seed: u64, features: bool) -> (Trainer, Vec<u8>) {
     let scene = Scene::load().unwrap();
     let mut cfg = RunConfig::default();
     cfg.ddpg.actor_hidden = vec![16, 16];
@@ -24,11 +30,12 @@ fn tiny_run(seed: u64) -> (Trainer, Vec<u8>) {
     cfg.obs_norm.enabled = true;
     cfg.seed = seed;
     let env_cfg = EnvConfig::new(Task::Reach).with_reward(Reward::ReachShaping);
-    let mut trainer = Trainer::new(cfg, OBS_DIM, ACT_DIM).unwrap();
+    let inputs = if features { INPUT_MAX } else { OBS_DIM };
+    let mut trainer = Trainer::new(cfg, inputs, ACT_DIM).unwrap();
     let stop = AtomicBool::new(false);
     trainer
         .run(
-            |_| JacoLearnEnv::new(&scene, env_cfg),
+            |_| JacoLearnEnv::new(&scene, env_cfg).with_features(features),
             400,
             &stop,
             &mut |_| {},
@@ -123,4 +130,56 @@ fn evaluation_refuses_a_policy_for_another_cell() {
     corrupt[30] ^= 1;
     let err = evaluate_policy_file(&corrupt, &scene, &settings, &|| {}).unwrap_err();
     assert!(err.to_string().contains("CRC"), "{err}");
+}
+
+/// A learner with the task features (`TrainSettings::features`): its environment hands it the
+/// observation and the features, its file lists them, and the runtime, feeding them through
+/// `policy_input` as the controller does, commands what the learner's actor does.
+#[test]
+fn a_featured_learner_exports_a_file_the_runtime_feeds_the_same_features() {
+    let (trainer, file) = tiny_run_with(4, true);
+    let aligned = aligned_copy(&file);
+    let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes()).unwrap();
+    assert_eq!(view.body().obs_dim(), INPUT_MAX);
+    let mut mlp = Mlp::<64>::new(&view).unwrap();
+    let scene = Scene::load().unwrap();
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(Task::Reach));
+    let mut obs = env.reset(episode_seed(7, 0)).unwrap();
+    let mut differs = 0;
+    for _ in 0..20 {
+        let mut buf = [0.0f32; INPUT_MAX];
+        let input = policy_input(&obs, INPUT_MAX, &mut buf);
+        let mut learner = [0.0f32; ACT_DIM];
+        trainer.act(input, &mut learner).unwrap();
+        let mut runtime = [0.0f32; ACT_DIM];
+        mlp.act(input, &mut runtime).unwrap();
+        for ((r, l), j) in runtime.iter().zip(&learner).zip(ACTION_JOINTS) {
+            let expected = (l * j.scale).clamp(j.min, j.max);
+            assert!(
+                (r - expected).abs() < 1e-4 * j.scale.max(1.0),
+                "{r} vs {expected}"
+            );
+        }
+        // The features reach the actor: zeroing them changes its action.
+        buf[OBS_DIM..].fill(0.0);
+        let mut blind = [0.0f32; ACT_DIM];
+        trainer.act(&buf, &mut blind).unwrap();
+        differs += usize::from(blind != learner);
+        obs = env.step(&learner).unwrap().observation;
+    }
+    assert!(differs > 10, "{differs}");
+    let settings = EvalSettings {
+        env: EnvConfig::new(Task::Reach),
+        episodes: 2,
+        seed: 11,
+        threads: 1,
+        can_quantisation: true,
+        envelope: false,
+    };
+    assert_eq!(
+        evaluate_policy_file(&file, &scene, &settings, &|| {})
+            .unwrap()
+            .episodes,
+        2
+    );
 }

@@ -353,3 +353,78 @@ fn the_paper_protocols_bad_settings_are_refused_before_training() {
     assert!(!dir.join("run").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A random actor of `inputs` inputs exported with a random normalisation.
+fn export_inputs(inputs: usize, seed: u64) -> (Trainer, Vec<u8>) {
+    let mut t = Trainer::new(config(&[16, 16]), inputs, ACT_DIM).unwrap();
+    let mut rng = Rng::seed_from_u64(seed);
+    let params: Vec<f32> = (0..t.actor().0.num_params())
+        .map(|_| rng.uniform(-0.4, 0.4))
+        .collect();
+    t.set_initial_actor(params).unwrap();
+    let mean: Vec<f32> = (0..inputs).map(|_| rng.uniform(-1.0, 1.0)).collect();
+    let inv_std: Vec<f32> = (0..inputs).map(|_| rng.uniform(0.5, 3.0)).collect();
+    let info = ExportInfo {
+        task: Task::Grasp,
+        seed: 0,
+        transitions: 0,
+        success_rate: None,
+        eval_episodes: 0,
+    };
+    let (net, p) = t.actor();
+    let norm = ObsNormalisation {
+        mean: &mean,
+        inv_std: &inv_std,
+    };
+    let file = export_actor_with(net, p, Some(norm), &info, Precision::F32).unwrap();
+    (t, file)
+}
+
+/// `features = true` (`--features`): a file that takes the task features starts a run that takes
+/// them and no other; the exporter lists them when the actor is as wide as observation + features.
+#[test]
+fn a_file_with_the_task_features_starts_only_a_run_with_them() {
+    use dex_runtime::features::{FEATURE_FIELDS, INPUT_MAX};
+    let (featured, file) = export_inputs(INPUT_MAX, 4);
+    let aligned = dex_runtime::aligned::aligned_copy(&file);
+    let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes()).unwrap();
+    assert_eq!(view.body().obs_dim(), INPUT_MAX);
+    let last = view.body().observation.iter().last().unwrap().name;
+    assert_eq!(last, FEATURE_FIELDS[FEATURE_FIELDS.len() - 1].name);
+    // Into an actor of the same width: accepted. Into the plain one: the features are named.
+    assert!(actor_params_from_policy(&file, Task::Grasp, featured.actor().0).is_ok());
+    let plain = Trainer::new(config(&[16, 16]), OBS_DIM, ACT_DIM).unwrap();
+    let e = actor_params_from_policy(&file, Task::Grasp, plain.actor().0).unwrap_err();
+    assert!(matches!(e, ImportError::Features { file: true }), "{e}");
+    let (_, plain_file) = export_inputs(OBS_DIM, 5);
+    let e = actor_params_from_policy(&plain_file, Task::Grasp, featured.actor().0).unwrap_err();
+    assert!(matches!(e, ImportError::Features { file: false }), "{e}");
+    assert!(e.to_string().contains("features = false"), "{e}");
+    // Through the run's settings.
+    let dir = std::env::temp_dir().join(format!("dex-init-features-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("featured.dxpl");
+    std::fs::write(&path, &file).unwrap();
+    let settings = TrainSettings {
+        task: TaskArg::Grasp,
+        out: dir.join("run"),
+        init_policy: Some(path),
+        features: true,
+        run: config(&[16, 16]),
+        ..TrainSettings::default()
+    };
+    assert_eq!(settings.input_dim(), INPUT_MAX);
+    assert!(TrainPlan::new(settings.clone()).is_ok());
+    let off = TrainSettings {
+        features: false,
+        ..settings
+    };
+    assert!(matches!(
+        TrainPlan::new(off).err(),
+        Some(TrainRunError::InitPolicy {
+            source: ImportError::Features { file: true },
+            ..
+        })
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+}

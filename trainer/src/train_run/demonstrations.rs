@@ -46,5 +46,10 @@ pub(super) fn demonstrations(
         };
         sets.push((set, path));
     }
-    Ok(Some(demo_buffer(&sets, s.task.task(), env_cfg.reward)?))
+    Ok(Some(demo_buffer(
+        &sets,
+        s.task.task(),
+        env_cfg.reward,
+        s.features,
+    )?))
 }

@@ -117,7 +117,7 @@ impl TrainPlan {
         // Each worker rank evaluates on its own episodes: together at the local run's rate.
         let ranks = transport.size().saturating_sub(1).max(1) as u64;
         run.eval.every_episodes = run.eval.every_episodes.saturating_mul(ranks);
-        let mut trainer = Trainer::new(run, OBS_DIM, ACT_DIM)?;
+        let mut trainer = Trainer::new(run, s.input_dim(), ACT_DIM)?;
         let mut rank = WorkerRank::new(transport, cfg, &trainer)?;
         // After rank 0's state: it has recorded the demonstrations by then.
         if !rank.start(&mut trainer)? {
@@ -130,7 +130,10 @@ impl TrainPlan {
         let starts = &self.starts;
         let stats = rank.run(
             &mut trainer,
-            |_| JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone()),
+            |_| {
+                JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone())
+                    .with_features(s.features)
+            },
             stop,
             &mut |_| {},
         )?;
@@ -155,5 +158,10 @@ fn load_demonstrations(s: &TrainSettings, dir: &Path) -> Result<Option<DemoBuffe
     for path in paths {
         sets.push((DemoSet::load(&path)?, path));
     }
-    Ok(Some(demo_buffer(&sets, s.task.task(), env_cfg.reward)?))
+    Ok(Some(demo_buffer(
+        &sets,
+        s.task.task(),
+        env_cfg.reward,
+        s.features,
+    )?))
 }

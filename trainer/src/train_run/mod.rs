@@ -15,7 +15,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_runtime::interface::ACT_DIM;
 
 use crate::demos::DemoError;
 use crate::env::{Demonstrator, EnvError, Scene, StartStates};
@@ -385,7 +385,11 @@ impl TrainPlan {
                     path: path.clone(),
                     source,
                 })?;
-                let nets = crate::learn::ddpg::Networks::new(&settings.run.ddpg, OBS_DIM, ACT_DIM)?;
+                let nets = crate::learn::ddpg::Networks::new(
+                    &settings.run.ddpg,
+                    settings.input_dim(),
+                    ACT_DIM,
+                )?;
                 let task = settings.task.task();
                 let imported = if settings.run.obs_norm.frozen_from_init {
                     crate::policy_import::normalised_actor_from_policy(&bytes, task, &nets.actor)

@@ -40,6 +40,7 @@ pub(super) fn train_seed(
                 && (&o.demo_files, o.record_demos, o.demo_noise.to_bits())
                     == (&s.demo_files, s.record_demos, s.demo_noise.to_bits())
                 && o.init_policy == s.init_policy
+                && o.features == s.features
         });
         if t.config() != &per_seed.run || !same_env {
             return Err(TrainRunError::SettingsDiffer { dir });
@@ -57,7 +58,7 @@ pub(super) fn train_seed(
         ] {
             let _ = std::fs::remove_file(stale);
         }
-        let mut t = Trainer::new(per_seed.run.clone(), OBS_DIM, ACT_DIM)?;
+        let mut t = Trainer::new(per_seed.run.clone(), s.input_dim(), ACT_DIM)?;
         match &plan.init_actor {
             None => {}
             Some(InitActor::Folded(params)) => t.set_initial_actor(params.clone())?,
@@ -109,7 +110,10 @@ pub(super) fn train_seed(
         let until = target.min(s.transitions);
         let summary = match server.as_deref_mut() {
             None => trainer.run(
-                |_| JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone()),
+                |_| {
+                    JacoLearnEnv::with_start_states(scene, env_cfg, starts.clone())
+                        .with_features(s.features)
+                },
                 until,
                 stop,
                 &mut forward,

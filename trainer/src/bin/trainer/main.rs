@@ -221,6 +221,11 @@ struct TrainArgs {
     /// clone); run.ddpg.actor_hidden must be its hidden sizes.
     #[arg(long)]
     init_policy: Option<PathBuf>,
+    /// The networks also take the controller's task features after the observation (the pinch
+    /// site's yaw, the bricks' yaws relative to it, the pinch-to-brick vectors in its frame);
+    /// an --init-policy must take them too.
+    #[arg(long)]
+    features: bool,
     /// Updates that train the critic alone (the actor stays as it started) before the actor
     /// moves: the critic rates the starting policy's own transitions first.
     #[arg(long)]

@@ -51,6 +51,7 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.obs_norm_from_demos
         || a.q_normalisation.is_some()
         || a.init_policy.is_some()
+        || a.features
         || a.critic_warmup_updates.is_some()
         || a.teacher_labels
 }
@@ -171,6 +172,9 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if let Some(p) = &a.init_policy {
         s.init_policy = Some(p.clone());
+    }
+    if a.features {
+        s.features = true;
     }
     if let Some(n) = a.critic_warmup_updates {
         s.run.critic_warmup_updates = n;
