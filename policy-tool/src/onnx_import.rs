@@ -103,8 +103,15 @@ pub fn import_onnx(model: &[u8], settings: &ImportSettings<'_>) -> Result<Import
             let b = view.body();
             (b.observation.clone(), b.action.clone(), b.control_period_us)
         }
+        // The cell's layout; a network as wide as the observation and the controller's task
+        // features (what `export-onnx` writes for a policy that takes them) takes both.
         None => (
-            dex_runtime::interface::policy_observation(),
+            match net.layers.first().map(|l| l.inputs) {
+                Some(n) if dex_runtime::features::takes_features(n) => {
+                    dex_runtime::features::policy_observation_with_features()
+                }
+                _ => dex_runtime::interface::policy_observation(),
+            },
             dex_runtime::interface::policy_action(),
             dex_runtime::interface::CONTROL_PERIOD_US,
         ),
