@@ -17,6 +17,8 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
+import gymnasium as gym
+
 import dexstack
 from conftest import ROOT, cargo_target_dir
 
@@ -139,8 +141,10 @@ def test_a_graph_with_normalisation_and_output_scaling_folds_into_the_file():
     assert (np.abs(physical) >= 3.0 - 1e-6).any()
 
 
-def test_the_shipped_grasp_policy_round_trips_bit_for_bit_and_runs_in_onnxruntime(tmp_path):
-    source = (ROOT / "policies" / "grasp.dxpl").read_bytes()
+@pytest.mark.parametrize("path", ["policies/grasp.dxpl",
+                                  "experiments/finetune/init/grasp-features-clone.dxpl"])
+def test_a_grasp_policy_round_trips_bit_for_bit_and_runs_in_onnxruntime(tmp_path, path):
+    source = (ROOT / path).read_bytes()
     policy = dexstack.Policy(source, can_quantisation=False)
     exported = policy.to_onnx(tmp_path / "grasp.onnx")
     model = onnx.load(tmp_path / "grasp.onnx")
@@ -153,10 +157,33 @@ def test_the_shipped_grasp_policy_round_trips_bit_for_bit_and_runs_in_onnxruntim
     assert again.to_bytes() == source
     init = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
     rng = np.random.default_rng(3)
-    obs = (init["obs_mean"] + init["obs_scale"] * rng.normal(0, 1, (N_OBS, OBS))).astype(np.float32)
+    obs = (init["obs_mean"][:OBS] + init["obs_scale"][:OBS] * rng.normal(0, 1, (N_OBS, OBS))).astype(np.float32)
+    # A policy that takes the task features: the graph's input is the observation followed by
+    # them, as dexstack.task_features computes them (the runtime's own function).
+    inputs = obs
+    if init["obs_mean"].shape[0] > OBS:
+        assert init["obs_mean"].shape[0] == OBS + 14
+        names = [n for n, _ in dexstack.TASK_FEATURE_FIELDS]
+        assert names[0] in model.graph.input[0].doc_string
+        inputs = np.concatenate([obs, np.stack([dexstack.task_features(o) for o in obs])], axis=1)
     ours = _runtime_actions(policy, obs)
-    theirs = _ort(exported, obs) / SCALE
+    theirs = _ort(exported, inputs) / SCALE
     assert np.abs(ours - theirs).max() <= TOL
+
+
+def test_task_features_ignore_a_half_turn_of_a_brick_and_need_44_values():
+    env = gym.make("dexstack/Stack-v0")
+    obs, _ = env.reset(options={"episode_seed": 5})
+    f = dexstack.task_features(obs)
+    assert f.shape == (14,) and f.dtype == np.float32 and np.isfinite(f).all()
+    turned = obs.copy()
+    w, x, y, z = turned[27:31]
+    turned[27:31] = [-z, -y, x, w]  # brick 1 turned by half a turn about the world z: (0, 0, 0, 1) * q
+    g = dexstack.task_features(turned)
+    assert np.abs(f - g).max() < 1e-5
+    assert np.abs(f[:2] - g[:2]).max() == 0  # the hand's own yaw does not involve the brick
+    with pytest.raises(ValueError, match="44"):
+        dexstack.task_features(obs[:40])
 
 
 def test_round_trip_of_a_torch_style_import_is_bit_exact():

@@ -419,6 +419,30 @@ fn episode_seed(seed: u64, index: u64) -> u64 {
     dex_env::seeds::episode_seed(seed, index)
 }
 
+/// The controller's task features of one observation (44 float32 values as bytes), as float32
+/// bytes (14 values): what a policy that takes them sees after the observation, computed by the
+/// runtime's own function (`dex_runtime::features`), so an ONNX export of such a policy gets its
+/// input bit for bit.
+#[pyfunction]
+fn task_features(obs: &[u8]) -> PyResult<Vec<u8>> {
+    let v = floats(obs, "observation", OBS_DIM)?;
+    let mut o = [0.0f32; OBS_DIM];
+    o.copy_from_slice(&v);
+    Ok(dex_runtime::features::task_features(&o)
+        .iter()
+        .flat_map(|x| x.to_ne_bytes())
+        .collect())
+}
+
+/// The task feature fields: (name, size), in order.
+#[pyfunction]
+fn task_feature_fields() -> Vec<(String, u16)> {
+    dex_runtime::features::FEATURE_FIELDS
+        .iter()
+        .map(|f| (f.name.to_owned(), f.size))
+        .collect()
+}
+
 /// The reward names (kebab-case), as `trainer train --reward` takes them.
 #[pyfunction]
 fn reward_names() -> Vec<String> {
@@ -487,6 +511,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(onnx::onnx_to_policy, m)?)?;
     m.add_function(wrap_pyfunction!(onnx::policy_to_onnx, m)?)?;
     m.add_function(wrap_pyfunction!(episode_seed, m)?)?;
+    m.add_function(wrap_pyfunction!(task_features, m)?)?;
+    m.add_function(wrap_pyfunction!(task_feature_fields, m)?)?;
     m.add_function(wrap_pyfunction!(reward_names, m)?)?;
     m.add_function(wrap_pyfunction!(default_reward, m)?)?;
     m.add_function(wrap_pyfunction!(default_episode_steps, m)?)?;

@@ -18,8 +18,11 @@ from __future__ import annotations
 
 import gymnasium
 
+import numpy as np
+
 from . import _core
 from ._core import episode_seed, reward_names
+from ._core import task_features as _task_features
 from .envs import TASKS, InvalidAction, JacoEnv, VectorEnv
 from .agents import Demonstrator, Policy
 from .renderer import RenderError, RendererUnavailable
@@ -35,10 +38,27 @@ __all__ = [
     "RendererUnavailable",
     "episode_seed",
     "reward_names",
+    "task_features",
+    "TASK_FEATURE_FIELDS",
     "register_envs",
 ]
 
 __version__ = "0.1.0"
+
+
+#: The controller's task features, in order: (name, size).
+TASK_FEATURE_FIELDS = tuple(_core.task_feature_fields())  # before `del _core` below
+
+
+def task_features(obs) -> np.ndarray:
+    """The controller's task features of one observation (44 values): 14 float32 values, the
+    runtime's own computation (``runtime/src/features.rs``). A policy file that takes them
+    (``trainer imitate --features``) sees them after the observation; its ONNX export takes the
+    58 values ``np.concatenate([obs, task_features(obs)])``."""
+    o = np.ascontiguousarray(obs, dtype=np.float32)
+    if o.shape != (44,):
+        raise ValueError(f"an observation is 44 values, got shape {o.shape}")
+    return np.frombuffer(_task_features(o.tobytes()), dtype=np.float32).copy()
 
 
 def register_envs() -> None:
