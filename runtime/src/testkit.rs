@@ -33,10 +33,21 @@ pub fn cell_layout() -> (Vec<ObservationField>, Vec<ActionJoint>) {
 
 /// A random-weight policy file on the cell's layout with the given hidden widths.
 pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
-    let (observation, action) = cell_layout();
+    let (observation, _) = cell_layout();
+    relu_tanh_policy(Task::Stack, &observation, hidden, seed)
+}
+
+/// A random-weight ReLU network with a tanh output on `observation` and the cell's joints.
+fn relu_tanh_policy(
+    task: Task,
+    observation: &[ObservationField],
+    hidden: &[u16],
+    seed: u64,
+) -> Result<Vec<u8>, FormatError> {
+    let (_, action) = cell_layout();
     synth_policy(&SynthSpec {
-        task: Task::Stack,
-        observation: &observation,
+        task,
+        observation,
         action: &action,
         hidden,
         hidden_activation: Activation::Relu,
@@ -363,19 +374,11 @@ pub fn sdo_abort_code(data: &[u8]) -> Option<u32> {
 /// A random-weight policy file that takes the task features (`crate::features`): the cell's
 /// observation fields followed by [`crate::features::FEATURE_FIELDS`].
 pub fn jaco_policy_with_features(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
-    let (mut observation, action) = cell_layout();
+    let (mut observation, _) = cell_layout();
     observation.extend(
         crate::features::FEATURE_FIELDS
             .iter()
             .map(|f| (f.name, f.size)),
     );
-    synth_policy(&SynthSpec {
-        task: Task::Grasp,
-        observation: &observation,
-        action: &action,
-        hidden,
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Tanh,
-        seed,
-    })
+    relu_tanh_policy(Task::Grasp, &observation, hidden, seed)
 }

@@ -30,8 +30,12 @@ fn config(hidden: &[usize]) -> RunConfig {
 
 /// A trainer whose 44-16-16-9 actor has random (not near-zero) weights.
 fn random_actor(seed: u64) -> Trainer {
-    let mut t = Trainer::new(config(&[16, 16]), OBS_DIM, ACT_DIM).unwrap();
-    let mut rng = Rng::seed_from_u64(seed);
+    random_actor_of(OBS_DIM, &mut Rng::seed_from_u64(seed))
+}
+
+/// A trainer whose 16-16-9 actor on `inputs` inputs has random weights drawn from `rng`.
+fn random_actor_of(inputs: usize, rng: &mut Rng) -> Trainer {
+    let mut t = Trainer::new(config(&[16, 16]), inputs, ACT_DIM).unwrap();
     let params: Vec<f32> = (0..t.actor().0.num_params())
         .map(|_| rng.uniform(-0.4, 0.4))
         .collect();
@@ -356,12 +360,8 @@ fn the_paper_protocols_bad_settings_are_refused_before_training() {
 
 /// A random actor of `inputs` inputs exported with a random normalisation.
 fn export_inputs(inputs: usize, seed: u64) -> (Trainer, Vec<u8>) {
-    let mut t = Trainer::new(config(&[16, 16]), inputs, ACT_DIM).unwrap();
     let mut rng = Rng::seed_from_u64(seed);
-    let params: Vec<f32> = (0..t.actor().0.num_params())
-        .map(|_| rng.uniform(-0.4, 0.4))
-        .collect();
-    t.set_initial_actor(params).unwrap();
+    let t = random_actor_of(inputs, &mut rng);
     let mean: Vec<f32> = (0..inputs).map(|_| rng.uniform(-1.0, 1.0)).collect();
     let inv_std: Vec<f32> = (0..inputs).map(|_| rng.uniform(0.5, 3.0)).collect();
     let info = ExportInfo {
