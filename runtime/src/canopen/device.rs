@@ -18,11 +18,120 @@
 //! [`DeviceState`].
 
 use super::abort::SdoAbort;
-use super::od::{Access, Entry, ObjectDictionary, read_value};
+use super::od::{
+    Access, DataType, Entry, Object, ObjectDictionary, ObjectKind, SubObject, Value, basic_entry,
+    find, read_value,
+};
 use super::program::{ProgramHost, ProgramObjects, is_program_object};
 
 /// Most emergency codes kept in 0x1003.
 pub const ERROR_HISTORY: usize = 8;
+
+const fn sub(
+    sub: u8,
+    name: &'static str,
+    data_type: DataType,
+    access: Access,
+    value: Value,
+) -> SubObject {
+    SubObject {
+        sub,
+        name,
+        data_type,
+        access,
+        value,
+    }
+}
+
+const fn error_field(n: u8, name: &'static str) -> SubObject {
+    sub(n, name, DataType::Unsigned32, Access::ReadOnly, Value::Live)
+}
+
+const U8: DataType = DataType::Unsigned8;
+const U16: DataType = DataType::Unsigned16;
+const U32: DataType = DataType::Unsigned32;
+const RO: Access = Access::ReadOnly;
+const RW: Access = Access::ReadWrite;
+
+/// The communication and manufacturer objects the dictionary serves (the table above): access
+/// and size of every request come from here ([`ObjectDictionary::entry`]), and `can/jaco.eds`
+/// is generated from it (with [`super::program::OBJECTS`]).
+pub const OBJECTS: [Object; 8] = [
+    Object {
+        index: 0x1000,
+        name: "Device type",
+        kind: ObjectKind::Var,
+        subs: &[sub(0, "Device type", U32, RO, Value::Const(0))],
+    },
+    Object {
+        index: 0x1001,
+        name: "Error register",
+        kind: ObjectKind::Var,
+        subs: &[sub(0, "Error register", U8, RO, Value::Live)],
+    },
+    Object {
+        index: 0x1003,
+        name: "Pre-defined error field",
+        kind: ObjectKind::Array,
+        subs: &[
+            sub(0, "Number of errors", U8, RW, Value::Stored),
+            error_field(1, "Standard error field 1"),
+            error_field(2, "Standard error field 2"),
+            error_field(3, "Standard error field 3"),
+            error_field(4, "Standard error field 4"),
+            error_field(5, "Standard error field 5"),
+            error_field(6, "Standard error field 6"),
+            error_field(7, "Standard error field 7"),
+            error_field(8, "Standard error field 8"),
+        ],
+    },
+    Object {
+        index: 0x1017,
+        name: "Producer heartbeat time",
+        kind: ObjectKind::Var,
+        subs: &[sub(0, "Producer heartbeat time", U16, RW, Value::Stored)],
+    },
+    Object {
+        index: 0x1018,
+        name: "Identity object",
+        kind: ObjectKind::Record,
+        subs: &[
+            sub(0, "Highest sub-index supported", U8, RO, Value::Const(4)),
+            sub(1, "Vendor-ID", U32, RO, Value::Stored),
+            sub(2, "Product code", U32, RO, Value::Stored),
+            sub(3, "Revision number", U32, RO, Value::Stored),
+            sub(4, "Serial number", U32, RO, Value::Stored),
+        ],
+    },
+    Object {
+        index: 0x1029,
+        name: "Error behaviour",
+        kind: ObjectKind::Array,
+        subs: &[
+            sub(0, "Highest sub-index supported", U8, RO, Value::Const(1)),
+            sub(1, "Communication error", U8, RW, Value::Stored),
+        ],
+    },
+    Object {
+        index: 0x2000,
+        name: "Active policy",
+        kind: ObjectKind::Record,
+        subs: &[
+            sub(0, "Highest sub-index supported", U8, RO, Value::Const(5)),
+            sub(1, "Layout hash", U32, RO, Value::Live),
+            sub(2, "Format version", U16, RO, Value::Live),
+            sub(3, "File CRC-32", U32, RO, Value::Live),
+            sub(4, "Task", U8, RO, Value::Live),
+            sub(5, "Slot generation", U32, RO, Value::Live),
+        ],
+    },
+    Object {
+        index: 0x2001,
+        name: "Envelope status",
+        kind: ObjectKind::Var,
+        subs: &[sub(0, "Envelope status", U8, RO, Value::Live)],
+    },
+];
 
 /// The identity the node reports in 0x1018.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -104,6 +213,22 @@ impl DeviceState {
             .push_front(u32::from(code) | (u32::from(fault) << 16));
     }
 
+    /// The value of a [`Value::Stored`] object of [`OBJECTS`] (`None` for any other): what the
+    /// dictionary keeps, read by the server and, for the default state, written into the EDS.
+    pub fn stored(&self, index: u16, sub: u8) -> Option<u32> {
+        let id = &self.identity;
+        match (index, sub) {
+            (0x1003, 0) => Some(self.history.len() as u32),
+            (0x1017, 0) => Some(u32::from(self.heartbeat_ms)),
+            (0x1018, 1) => Some(id.vendor),
+            (0x1018, 2) => Some(id.product),
+            (0x1018, 3) => Some(id.revision),
+            (0x1018, 4) => Some(id.serial),
+            (0x1029, 1) => Some(u32::from(self.error_behaviour)),
+            _ => None,
+        }
+    }
+
     /// The recorded emergencies, newest first.
     pub fn errors(&self) -> impl Iterator<Item = u32> + '_ {
         self.history.iter().copied()
@@ -137,45 +262,34 @@ impl<'a, 'r, H: DeviceHost + ProgramHost> DeviceObjects<'a, 'r, H> {
 
     /// The value of a basic object as little-endian bytes and its length.
     fn value(&self, index: u16, sub: u8) -> Result<([u8; 4], usize), SdoAbort> {
-        let u32v = |v: u32| Ok((v.to_le_bytes(), 4));
-        let u16v = |v: u16| Ok(([v.to_le_bytes()[0], v.to_le_bytes()[1], 0, 0], 2));
-        let u8v = |v: u8| Ok(([v, 0, 0, 0], 1));
-        let id = &self.state.identity;
-        let policy = self.host().active_policy().unwrap_or_default();
-        match (index, sub) {
-            (0x1000, 0) => u32v(0),
-            (0x1001, 0) => u8v(self.host().error_register()),
-            (0x1003, 0) => u8v(self.state.history.len() as u8),
-            (0x1003, s) if usize::from(s) <= ERROR_HISTORY => {
-                match self.state.errors().nth(usize::from(s) - 1) {
-                    Some(v) => u32v(v),
-                    None => Err(SdoAbort::NoData),
-                }
-            }
-            (0x1017, 0) => u16v(self.state.heartbeat_ms),
-            (0x1018, 0) => u8v(4),
-            (0x1018, 1) => u32v(id.vendor),
-            (0x1018, 2) => u32v(id.product),
-            (0x1018, 3) => u32v(id.revision),
-            (0x1018, 4) => u32v(id.serial),
-            (0x1029, 0) => u8v(1),
-            (0x1029, 1) => u8v(self.state.error_behaviour),
-            (0x2000, 0) => u8v(5),
-            (0x2000, 1) => u32v(policy.layout_hash),
-            (0x2000, 2) => u16v(policy.format_version),
-            (0x2000, 3) => u32v(self.program.slots.active_crc()),
-            (0x2000, 4) => u8v(policy.task),
-            (0x2000, 5) => u32v(self.program.slots.active().map_or(0, |f| f.generation)),
-            (0x2001, 0) => u8v(self.host().envelope_status()),
-            (0x1000 | 0x1001 | 0x1003 | 0x1017 | 0x1018 | 0x1029 | 0x2000 | 0x2001, _) => {
-                Err(SdoAbort::NoSubIndex)
-            }
-            _ => Err(SdoAbort::NoObject),
-        }
+        let desc = find(&OBJECTS, index, sub)?;
+        let len = desc.data_type.size().unwrap_or(4) as usize;
+        let v = match desc.value {
+            Value::Const(v) => v,
+            Value::Stored => self.state.stored(index, sub).ok_or(SdoAbort::NoData)?,
+            Value::Live => self.live(index, sub)?,
+        };
+        Ok((v.to_le_bytes(), len))
     }
 
-    fn writable(index: u16, sub: u8) -> bool {
-        matches!((index, sub), (0x1003, 0) | (0x1017, 0) | (0x1029, 1))
+    /// The value of a [`Value::Live`] object.
+    fn live(&self, index: u16, sub: u8) -> Result<u32, SdoAbort> {
+        let policy = self.host().active_policy().unwrap_or_default();
+        match (index, sub) {
+            (0x1001, 0) => Ok(u32::from(self.host().error_register())),
+            (0x1003, s) if s >= 1 => self
+                .state
+                .errors()
+                .nth(usize::from(s) - 1)
+                .ok_or(SdoAbort::NoData),
+            (0x2000, 1) => Ok(policy.layout_hash),
+            (0x2000, 2) => Ok(u32::from(policy.format_version)),
+            (0x2000, 3) => Ok(self.program.slots.active_crc()),
+            (0x2000, 4) => Ok(u32::from(policy.task)),
+            (0x2000, 5) => Ok(self.program.slots.active().map_or(0, |f| f.generation)),
+            (0x2001, 0) => Ok(u32::from(self.host().envelope_status())),
+            _ => Err(SdoAbort::NoData),
+        }
     }
 }
 
@@ -184,20 +298,8 @@ impl<H: DeviceHost + ProgramHost> ObjectDictionary for DeviceObjects<'_, '_, H> 
         if is_program_object(index) {
             return self.program.entry(index, sub);
         }
-        let (_, len) = match self.value(index, sub) {
-            // An empty slot of the error history still exists (it reads as "no data").
-            Err(SdoAbort::NoData) => ([0; 4], 4),
-            other => other?,
-        };
-        Ok(Entry {
-            access: if Self::writable(index, sub) {
-                Access::ReadWrite
-            } else {
-                Access::ReadOnly
-            },
-            size: Some(len as u32),
-            exact: true,
-        })
+        // An empty slot of the error history exists too (it reads as "no data").
+        Ok(basic_entry(find(&OBJECTS, index, sub)?))
     }
 
     fn read(

@@ -8,10 +8,12 @@
 
 pub mod abort;
 pub mod device;
+#[cfg(feature = "std")]
+pub mod eds;
 pub mod od;
 pub mod program;
 pub mod sdo;
 
 pub use abort::SdoAbort;
-pub use od::{Access, Entry, ObjectDictionary};
+pub use od::{Access, DataType, Entry, Object, ObjectDictionary, ObjectKind, SubObject, Value};
 pub use sdo::{SdoFrame, SdoServer, abort_frame};

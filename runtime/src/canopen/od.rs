@@ -73,3 +73,124 @@ pub fn read_value(value: &[u8], offset: u32, buf: &mut [u8]) -> usize {
     buf[..n].copy_from_slice(&rest[..n]);
     n
 }
+
+/// CiA 301 data type of an object, as the dictionary serves it and the EDS lists it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DataType {
+    /// UNSIGNED8 (0x0005).
+    Unsigned8,
+    /// UNSIGNED16 (0x0006).
+    Unsigned16,
+    /// UNSIGNED32 (0x0007).
+    Unsigned32,
+    /// DOMAIN (0x000F): bytes of any length, streamed.
+    Domain,
+}
+
+impl DataType {
+    /// The CiA 301 data type index (the EDS's `DataType`).
+    pub const fn code(self) -> u16 {
+        match self {
+            DataType::Unsigned8 => 0x0005,
+            DataType::Unsigned16 => 0x0006,
+            DataType::Unsigned32 => 0x0007,
+            DataType::Domain => 0x000F,
+        }
+    }
+
+    /// Bytes of a value (`None` for a domain).
+    pub const fn size(self) -> Option<u32> {
+        match self {
+            DataType::Unsigned8 => Some(1),
+            DataType::Unsigned16 => Some(2),
+            DataType::Unsigned32 => Some(4),
+            DataType::Domain => None,
+        }
+    }
+}
+
+/// Where a sub-object's value comes from, for a description of the dictionary (an EDS).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Value {
+    /// Always this value (a sub-index 0 count, the device type).
+    Const(u32),
+    /// Kept by the dictionary, starting from the device's configuration (identity, heartbeat
+    /// time): the EDS default is the value after boot of the default configuration.
+    Stored,
+    /// Read from the controller or the slots at the time of the request (no static default).
+    Live,
+}
+
+/// How the sub-objects of an object are organised (CiA 301 object code).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ObjectKind {
+    /// A single value at sub-index 0 (VAR, object code 0x7).
+    Var,
+    /// Sub-index 0 the count, the others of one type (ARRAY, 0x8).
+    Array,
+    /// Sub-index 0 the count, the others of any type (RECORD, 0x9).
+    Record,
+}
+
+impl ObjectKind {
+    /// The CiA 301 object code (the EDS's `ObjectType`).
+    pub const fn code(self) -> u8 {
+        match self {
+            ObjectKind::Var => 0x7,
+            ObjectKind::Array => 0x8,
+            ObjectKind::Record => 0x9,
+        }
+    }
+}
+
+/// One sub-object of the dictionary's static description.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SubObject {
+    /// Sub-index.
+    pub sub: u8,
+    /// Name (the EDS's `ParameterName`).
+    pub name: &'static str,
+    /// Data type.
+    pub data_type: DataType,
+    /// Access.
+    pub access: Access,
+    /// Where the value comes from.
+    pub value: Value,
+}
+
+/// One object of the dictionary's static description: what the SDO server serves (its
+/// [`ObjectDictionary::entry`] reads access and size here) and what the EDS lists.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Object {
+    /// Index.
+    pub index: u16,
+    /// Name (the EDS's `ParameterName`).
+    pub name: &'static str,
+    /// Object code.
+    pub kind: ObjectKind,
+    /// Sub-objects in sub-index order (a VAR has one, at sub-index 0).
+    pub subs: &'static [SubObject],
+}
+
+/// A sub-object of `objects`: [`SdoAbort::NoObject`] when no object has `index`,
+/// [`SdoAbort::NoSubIndex`] when it has no `sub`.
+pub fn find(objects: &[Object], index: u16, sub: u8) -> Result<&SubObject, SdoAbort> {
+    let object = objects
+        .iter()
+        .find(|o| o.index == index)
+        .ok_or(SdoAbort::NoObject)?;
+    object
+        .subs
+        .iter()
+        .find(|s| s.sub == sub)
+        .ok_or(SdoAbort::NoSubIndex)
+}
+
+/// The [`Entry`] of a described sub-object of a basic type (exact size).
+pub const fn basic_entry(sub: &SubObject) -> Entry {
+    Entry {
+        access: sub.access,
+        size: sub.data_type.size(),
+        exact: true,
+    }
+}

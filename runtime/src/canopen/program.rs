@@ -25,7 +25,10 @@
 use dex_policy::PolicyView;
 
 use super::abort::SdoAbort;
-use super::od::{Access, Entry, ObjectDictionary, read_value};
+use super::od::{
+    Access, DataType, Entry, Object, ObjectDictionary, ObjectKind, SubObject, Value, basic_entry,
+    find, read_value,
+};
 use crate::error::LoadError;
 use crate::slots::{PolicySlots, SlotError};
 
@@ -37,6 +40,81 @@ pub const PROGRAM_CONTROL: u16 = 0x1F51;
 pub const PROGRAM_ID: u16 = 0x1F56;
 /// Flash status identification.
 pub const FLASH_STATUS: u16 = 0x1F57;
+
+/// Sub-index 0 of every program-download object: one program.
+const PROGRAMS: SubObject = SubObject {
+    sub: 0,
+    name: "Highest sub-index supported",
+    data_type: DataType::Unsigned8,
+    access: Access::ReadOnly,
+    value: Value::Const(1),
+};
+
+/// The program-download objects (the module's list): access and size of every request come from
+/// here ([`ObjectDictionary::entry`]; program data's size is the slot capacity), and
+/// `can/jaco.eds` is generated from it (with [`super::device::OBJECTS`]).
+pub const OBJECTS: [Object; 4] = [
+    Object {
+        index: PROGRAM_DATA,
+        name: "Program data",
+        kind: ObjectKind::Array,
+        subs: &[
+            PROGRAMS,
+            SubObject {
+                sub: 1,
+                name: "Program number 1",
+                data_type: DataType::Domain,
+                access: Access::WriteOnly,
+                value: Value::Live,
+            },
+        ],
+    },
+    Object {
+        index: PROGRAM_CONTROL,
+        name: "Program control",
+        kind: ObjectKind::Array,
+        subs: &[
+            PROGRAMS,
+            SubObject {
+                sub: 1,
+                name: "Program number 1",
+                data_type: DataType::Unsigned8,
+                access: Access::ReadWrite,
+                value: Value::Live,
+            },
+        ],
+    },
+    Object {
+        index: PROGRAM_ID,
+        name: "Program software identification",
+        kind: ObjectKind::Array,
+        subs: &[
+            PROGRAMS,
+            SubObject {
+                sub: 1,
+                name: "Program number 1",
+                data_type: DataType::Unsigned32,
+                access: Access::ReadOnly,
+                value: Value::Live,
+            },
+        ],
+    },
+    Object {
+        index: FLASH_STATUS,
+        name: "Flash status identification",
+        kind: ObjectKind::Array,
+        subs: &[
+            PROGRAMS,
+            SubObject {
+                sub: 1,
+                name: "Program number 1",
+                data_type: DataType::Unsigned32,
+                access: Access::ReadOnly,
+                value: Value::Live,
+            },
+        ],
+    },
+];
 
 /// Program control values (0x1F51:1).
 pub mod control {
@@ -206,25 +284,16 @@ impl<H: ProgramHost> ProgramObjects<'_, '_, H> {
 
 impl<H: ProgramHost> ObjectDictionary for ProgramObjects<'_, '_, H> {
     fn entry(&self, index: u16, sub: u8) -> Result<Entry, SdoAbort> {
-        if !is_program_object(index) {
-            return Err(SdoAbort::NoObject);
-        }
-        let e = |access, size| Entry {
-            access,
-            size: Some(size),
-            exact: true,
-        };
-        match (index, sub) {
-            (_, 0) => Ok(e(Access::ReadOnly, 1)),
-            (PROGRAM_DATA, 1) => Ok(Entry {
-                access: Access::WriteOnly,
+        let desc = find(&OBJECTS, index, sub)?;
+        Ok(match desc.data_type {
+            // A domain takes at most a slot.
+            DataType::Domain => Entry {
+                access: desc.access,
                 size: Some(self.slots.capacity() as u32),
                 exact: false,
-            }),
-            (PROGRAM_CONTROL, 1) => Ok(e(Access::ReadWrite, 1)),
-            (PROGRAM_ID | FLASH_STATUS, 1) => Ok(e(Access::ReadOnly, 4)),
-            _ => Err(SdoAbort::NoSubIndex),
-        }
+            },
+            _ => basic_entry(desc),
+        })
     }
 
     fn read(
@@ -235,7 +304,10 @@ impl<H: ProgramHost> ObjectDictionary for ProgramObjects<'_, '_, H> {
         buf: &mut [u8],
     ) -> Result<usize, SdoAbort> {
         let value: u32 = match (index, sub) {
-            (_, 0) => 1,
+            (_, 0) => match find(&OBJECTS, index, sub)?.value {
+                Value::Const(v) => v,
+                _ => return Err(SdoAbort::NoData),
+            },
             (PROGRAM_CONTROL, 1) => u32::from(self.host.running()),
             (PROGRAM_ID, 1) => self.slots.active_crc(),
             (FLASH_STATUS, 1) => self.state.status_word(self.slots.transfer_state() == 2),

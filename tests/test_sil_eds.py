@@ -1,0 +1,148 @@
+"""The controller's EDS (can/jaco.eds, generated from the SDO server's object tables by
+runtime/src/canopen/eds.rs) with a stock CANopen tool: the `canopen` library imports it without a
+warning, and a running controller node answers an SDO upload of every readable object it lists,
+with a value of the listed data type's size and, where the EDS gives a default, that value."""
+import gc
+import logging
+import warnings
+from pathlib import Path
+
+import canopen
+import pytest
+from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+from canopen.sdo import SdoAbortedError
+
+from conftest import NODE, PREOP, wait_heartbeat
+
+EDS = Path(__file__).resolve().parent.parent / "can" / "jaco.eds"
+NO_DATA = 0x0800_0024
+SIZES = {0x05: 1, 0x06: 2, 0x07: 4}  # UNSIGNED8/16/32
+READABLE = ("ro", "rw", "const", "rwr", "rww")
+
+
+class Records(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.records = []
+
+    def emit(self, record):
+        self.records.append(record)
+
+
+def import_quietly():
+    """canopen.import_od of the EDS; (dictionary, Python warnings, canopen log records)."""
+    handler = Records()
+    log = logging.getLogger("canopen")
+    log.addHandler(handler)
+    old_level = log.level
+    log.setLevel(logging.WARNING)
+    # Other tests' garbage (unclosed pipes: ResourceWarning) is collected before, not during the
+    # import, so that what is recorded is the import's own.
+    gc.collect()
+    gc.disable()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            od = canopen.import_od(str(EDS), NODE)
+    finally:
+        gc.enable()
+        log.removeHandler(handler)
+        log.setLevel(old_level)
+    return od, caught, handler.records
+
+
+def variables(od):
+    """Every ODVariable of the dictionary, in index and sub-index order."""
+    out = []
+    for index in sorted(od.indices):
+        obj = od[index]
+        if isinstance(obj, ODVariable):
+            out.append(obj)
+        else:
+            assert isinstance(obj, (ODRecord, ODArray)), obj
+            out += [obj[s] for s in sorted(obj.subindices)]
+    return out
+
+
+def test_the_eds_imports_without_warnings():
+    od, caught, records = import_quietly()
+    assert not caught, [str(w.message) for w in caught]
+    assert not records, [r.getMessage() for r in records]
+    assert od.device_information.product_number == 0x44584A43
+    # The objects docs/runtime.md lists, and nothing else.
+    assert sorted(od.indices) == [
+        0x1000, 0x1001, 0x1003, 0x1017, 0x1018, 0x1029, 0x1F50, 0x1F51, 0x1F56, 0x1F57, 0x2000,
+        0x2001,
+    ]
+    assert od[0x1F50][1].data_type == 0x0F and od[0x1F50][1].access_type == "wo"
+    assert od[0x1F51][1].access_type == "rw"
+    assert len(od[0x1003].subindices) == 9 and len(od[0x2000].subindices) == 6
+    for var in variables(od):
+        assert var.data_type in (0x05, 0x06, 0x07, 0x0F), var.name
+    # The identity in the device info agrees with 0x1018's defaults.
+    assert od[0x1018][2].default == od.device_information.product_number
+    assert od[0x1018][3].default == od.device_information.revision_number
+
+
+@pytest.fixture
+def eds_node(sim):
+    """A controller (good policy, pre-operational) and a canopen node on its EDS."""
+    s = sim("good")
+    wait_heartbeat(s.bus(), PREOP, 2.0)
+    bus = s.bus()
+    s.buses.remove(bus)  # the network shuts it down
+    network = canopen.Network(bus)
+    network.connect()
+    node = network.add_node(NODE, str(EDS))
+    node.sdo.RESPONSE_TIMEOUT = 2.0
+    yield node
+    network.disconnect()
+
+
+def test_every_readable_object_of_the_eds_answers_an_upload(eds_node):
+    node = eds_node
+    errors = int(node.sdo[0x1003][0].raw)
+    seen = 0
+    for var in variables(node.object_dictionary):
+        if var.access_type not in READABLE:
+            continue
+        if var.index == 0x1003 and var.subindex > errors:
+            # An empty slot of the error history exists and reads as "no data".
+            with pytest.raises(SdoAbortedError) as e:
+                node.sdo.upload(var.index, var.subindex)
+            assert e.value.code == NO_DATA
+            continue
+        raw = node.sdo.upload(var.index, var.subindex)
+        assert len(raw) == SIZES[var.data_type], f"{var.index:#06x}:{var.subindex} {var.name}"
+        sdo_var = node.sdo[var.index] if var.subindex == 0 and isinstance(
+            node.object_dictionary[var.index], ODVariable
+        ) else node.sdo[var.index][var.subindex]
+        value = sdo_var.raw
+        assert value == int.from_bytes(raw, "little")
+        if var.default is not None:
+            assert value == var.default, f"{var.index:#06x}:{var.subindex} {var.name}: {value} != default {var.default}"
+        seen += 1
+    assert seen >= 25  # 1000, 1001, 1003:0, 1017, 1018:0-4, 1029:0-1, 1F5x:0-1 (no 1F50:1), 2000:0-5, 2001
+
+
+def test_identity_and_device_type_equal_the_eds(eds_node):
+    node = eds_node
+    od = node.object_dictionary
+    assert node.sdo[0x1000].raw == od[0x1000].default == 0
+    for sub in range(5):
+        assert od[0x1018][sub].default is not None
+        assert node.sdo[0x1018][sub].raw == od[0x1018][sub].default
+    # The active policy's objects are the good policy's (not in the EDS: live values).
+    assert node.sdo[0x2000][3].raw == node.sdo[0x1F56][1].raw != 0
+
+
+def test_write_only_program_data_is_refused_for_upload(eds_node):
+    with pytest.raises(SdoAbortedError) as e:
+        eds_node.sdo.upload(0x1F50, 1)
+    assert e.value.code == 0x0601_0001  # write only
+    with pytest.raises(SdoAbortedError) as e:
+        eds_node.sdo.upload(0x1018, 5)  # beyond the EDS's sub-indices
+    assert e.value.code == 0x0609_0011
+    with pytest.raises(SdoAbortedError) as e:
+        eds_node.sdo.upload(0x1005, 0)  # not in the EDS
+    assert e.value.code == 0x0602_0000
