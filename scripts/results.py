@@ -55,7 +55,8 @@ SECTIONS = [
         "Ours are the files in `policies/` (the imitation learner; how each was made: "
         "[policies/README.md](../policies/README.md)). `bash experiments/table2.sh` runs the three "
         "evaluations. The first row of each task is the latest evaluation on the current code; rows "
-        "marked *history* are earlier evaluations of the same file (same sha256).",
+        "marked *history* are earlier evaluations, of the same file (same sha256) or of the file it "
+        "replaced (its note says which).",
     ),
     (
         "main-job",

@@ -141,16 +141,16 @@ def test_a_graph_with_normalisation_and_output_scaling_folds_into_the_file():
     assert (np.abs(physical) >= 3.0 - 1e-6).any()
 
 
-@pytest.mark.parametrize("path", ["policies/grasp.dxpl",
-                                  "experiments/finetune/init/grasp-features-clone.dxpl"])
-def test_a_grasp_policy_round_trips_bit_for_bit_and_runs_in_onnxruntime(tmp_path, path):
+@pytest.mark.parametrize("path, task", [("policies/grasp.dxpl", "grasp"),
+                                        ("runtime/tests/golden/jaco_64.dxpl", "stack")])
+def test_a_cell_policy_round_trips_bit_for_bit_and_runs_in_onnxruntime(tmp_path, path, task):
     source = (ROOT / path).read_bytes()
     policy = dexstack.Policy(source, can_quantisation=False)
     exported = policy.to_onnx(tmp_path / "grasp.onnx")
     model = onnx.load(tmp_path / "grasp.onnx")
     onnx.checker.check_model(model, full_check=True)
     meta = {p.key: p.value for p in model.metadata_props}
-    assert meta["dexstack.task"] == "grasp"
+    assert meta["dexstack.task"] == task
     assert "finger_1" in model.graph.output[0].doc_string
     assert "arm_joint_sin[0]" in model.graph.input[0].doc_string
     again = dexstack.Policy.from_onnx(exported, can_quantisation=False)

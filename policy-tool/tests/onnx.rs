@@ -21,13 +21,9 @@ fn cell() -> ImportSettings<'static> {
 
 #[test]
 fn a_cell_policy_round_trips_byte_for_byte() {
-    // A clone that takes the controller's task features too: its 58-wide input gives the cell's
-    // layout followed by the feature fields.
-    for path in [
-        "runtime/tests/golden/jaco_64.dxpl",
-        "policies/grasp.dxpl",
-        "experiments/finetune/init/grasp-features-clone.dxpl",
-    ] {
+    // The shipped Grasp clone takes the controller's task features too: its 58-wide input gives
+    // the cell's layout followed by the feature fields.
+    for path in ["runtime/tests/golden/jaco_64.dxpl", "policies/grasp.dxpl"] {
         let file = read(path);
         let onnx = export_onnx(&file).unwrap();
         let back = import_onnx(&onnx, &cell()).unwrap();

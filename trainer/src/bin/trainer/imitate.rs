@@ -49,10 +49,11 @@ pub struct ImitateArgs {
     /// Hidden layer widths, comma-separated.
     #[arg(long, value_delimiter = ',')]
     hidden: Option<Vec<usize>>,
-    /// The policy also takes the controller's task features (the pinch site's yaw, the bricks'
-    /// yaws relative to it, the pinch-to-brick vectors in its frame; docs/imitation.md).
-    #[arg(long)]
-    features: bool,
+    /// Whether the policy also takes the controller's task features (the pinch site's yaw, the
+    /// bricks' yaws relative to it, the pinch-to-brick vectors in its frame; docs/imitation.md):
+    /// on by default, `--features false` clones from the observation alone.
+    #[arg(long, action = clap::ArgAction::Set)]
+    features: Option<bool>,
     /// Selection starts per round (seed 2,000,000).
     #[arg(long)]
     select_episodes: Option<u32>,
@@ -107,8 +108,8 @@ impl ImitateArgs {
         if let Some(v) = &self.hidden {
             c.bc.hidden = v.clone();
         }
-        if self.features {
-            c.bc.features = true;
+        if let Some(v) = self.features {
+            c.bc.features = v;
         }
         if let Some(v) = self.select_episodes {
             c.select_episodes = v;
