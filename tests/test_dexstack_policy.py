@@ -56,7 +56,10 @@ def test_policy_file_from_python_equals_trainer_eval(tmp_path):
 def test_policy_info_has_the_header_and_layout():
     info = dexstack.Policy(POLICY).info()
     assert info["task"] == "grasp" and info["version"] in (1, 2)
-    assert [s for _, s in info["observation"]] == [6, 6, 3, 9, 3, 4, 3, 4, 3, 3]
+    # The cell's observation, then the task features the shipped policies take (runtime/src/features.rs).
+    assert [s for _, s in info["observation"]] == [6, 6, 3, 9, 3, 4, 3, 4, 3, 3] + [
+        size for _, size in dexstack.TASK_FEATURE_FIELDS]
+    assert [n for n, _ in info["observation"]][10:] == [n for n, _ in dexstack.TASK_FEATURE_FIELDS]
     assert [j[0] for j in info["action"]][:2] == ["arm_joint_1", "arm_joint_2"]
     assert [layer[0] for layer in info["layers"]] == [256, 256, 9]
     assert info["bytes"] == POLICY.stat().st_size and isinstance(info["crc"], int)
