@@ -16,7 +16,7 @@
 //! brick turned by half a turn leaves unchanged.
 
 use dex_policy::{FormatError, PolicyView};
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 
 use crate::interface::{ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
 use crate::kinematics::{ARM_JOINTS, pinch_pose};
@@ -155,7 +155,8 @@ pub fn task_features(obs: &[f32; OBS_DIM]) -> [f32; FEATURE_DIM] {
     let yaw2 = quat_yaw(&obs[BRICK2_QUAT..BRICK2_QUAT + 4]);
     let local = |at: usize| -> [f32; 3] {
         let v = Vector3::new(obs[at], obs[at + 1], obs[at + 2]);
-        let l = inverse(&pose.rot) * v;
+        // The inverse of a unit quaternion is its conjugate (no division).
+        let l = pose.rot.conjugate() * v;
         [l[0], l[1], l[2]]
     };
     let [s1, c1] = half_turn_pair(yaw1, pinch_yaw);
@@ -179,11 +180,6 @@ pub fn task_features(obs: &[f32; OBS_DIM]) -> [f32; FEATURE_DIM] {
         l2[1],
         l2[2],
     ]
-}
-
-/// The inverse of a unit quaternion (its conjugate: no division).
-fn inverse(r: &UnitQuaternion<f32>) -> UnitQuaternion<f32> {
-    r.conjugate()
 }
 
 #[cfg(test)]
