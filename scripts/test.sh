@@ -7,7 +7,7 @@ start=$(date +%s)
 step() { printf '\n==> [%4ss] %s\n' "$(( $(date +%s) - start ))" "$*"; }
 # cargo's target probe runs `rustc -`, which reads its source from stdin: when /dev/null is not
 # the null device (a program renamed a file over it; `trainer eval --actions /dev/null` once did,
-# see trainer/src/atomic_write.rs) it reads whatever was last written there and the build fails
+# see trainer/src/files/atomic_write.rs) it reads whatever was last written there and the build fails
 # with "failed to run `rustc` to learn about target-specific information". A machine that
 # arrives so is mended (as root); a step of the suite that breaks it fails the suite.
 null_device_ok() { [ -c /dev/null ]; }

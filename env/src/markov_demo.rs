@@ -7,7 +7,7 @@
 //! from the state at every step (brick held? on brick 2? pinch at the grasp point? fingers closed
 //! and settled?) and blends where the phase machine switches (the hand descends as it aligns),
 //! so it is an oracle at any state: cloning it is plain regression, and DAgger can ask it about
-//! the learner's own states (`dex_trainer::imitation`).
+//! the learner's own states (`dex_trainer::pipeline::imitation`).
 //!
 //! Placing differs from the phase machine's: brick 1 comes down in proportion to how well it is
 //! centred over brick 2 and turned to brick 2's yaw (modulo the half turn) rather than after a

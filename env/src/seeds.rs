@@ -44,7 +44,7 @@ pub const DEMO_SEED: u64 = 5_000_000;
 /// ([`heldout_observations`](crate::evaluate::heldout_observations)).
 pub const HELDOUT_SEED: u64 = 7_000_000;
 
-/// Start seed of the int8 exporter's calibration episodes (`dex_trainer::export`): episode `i`
+/// Start seed of the int8 exporter's calibration episodes (`dex_trainer::files::export`): episode `i`
 /// starts from `episode_seed(CALIBRATION_SEED, i)`.
 pub const CALIBRATION_SEED: u64 = 8_000_000;
 

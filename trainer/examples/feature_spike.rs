@@ -15,11 +15,11 @@ use anyhow::Context;
 use clap::Parser;
 use dex_runtime::features::{FEATURE_DIM, task_features};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
-use dex_trainer::cloning::{clone_rows, with_features};
-use dex_trainer::demos::DemoSet;
 use dex_trainer::env::seeds::episode_seed;
 use dex_trainer::env::{EnvConfig, JacoEnv, Scene, Task};
+use dex_trainer::files::demos::DemoSet;
 use dex_trainer::learn::bc::{BcConfig, BcPolicy, train_bc};
+use dex_trainer::pipeline::cloning::{clone_rows, with_features};
 
 #[derive(Parser)]
 struct Args {

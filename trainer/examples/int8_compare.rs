@@ -33,7 +33,7 @@ use dex_trainer::evaluate::{
     EvalSettings, HELDOUT_SEED, PolicyEval, action_error, action_errors, episode_outcomes,
     heldout_observations_of_both,
 };
-use dex_trainer::export::{
+use dex_trainer::files::export::{
     CALIBRATION_EPISODES, CALIBRATION_SEED, calibration_observations, equalise_policy_file,
     quantise_policy_file,
 };

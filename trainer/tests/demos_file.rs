@@ -7,9 +7,9 @@
 mod common;
 use common::scene;
 
-use dex_trainer::demos::{DemoError, DemoSet, RecordSettings, record, record_with};
+use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::env::{Demonstrator, Task};
-use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
+use dex_trainer::files::demos::{DemoError, DemoSet, RecordSettings, record, record_with};
 
 fn small(task: Task) -> DemoSet {
     let settings = RecordSettings {
@@ -129,7 +129,7 @@ fn the_demonstrator_takes_over_from_a_policy() {
     let lead = PolicyDemonstration::from_file_bytes(&fixture).unwrap();
     let settings = RecordSettings {
         episodes: 3,
-        mode: dex_trainer::demos::RecordMode::Takeover { max_step: 60 },
+        mode: dex_trainer::files::demos::RecordMode::Takeover { max_step: 60 },
         ..RecordSettings::new(Task::Grasp)
     };
     let src = DemoSource::Scripted(Demonstrator::new(Task::Grasp));

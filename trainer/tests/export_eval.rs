@@ -9,10 +9,10 @@ use dex_runtime::Mlp;
 use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
 use dex_runtime::testkit::aligned_copy;
+use dex_trainer::cell::jaco::JacoLearnEnv;
 use dex_trainer::env::{EnvConfig, JacoEnv, Reward, Scene, Task};
 use dex_trainer::evaluate::{EvalSettings, episode_seed, evaluate_policy_file};
-use dex_trainer::export::{ExportInfo, ObsNormalisation, export_actor};
-use dex_trainer::jaco::JacoLearnEnv;
+use dex_trainer::files::export::{ExportInfo, ObsNormalisation, export_actor};
 use dex_trainer::learn::{RunConfig, Trainer};
 
 fn tiny_run(seed: u64) -> (Trainer, Vec<u8>) {

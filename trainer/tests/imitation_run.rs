@@ -4,11 +4,11 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use dex_trainer::demos::{DemoSet, RecordMode};
 use dex_trainer::env::seeds::CI_SEED;
 use dex_trainer::env::{Scene, Task};
-use dex_trainer::imitation::{ImitationConfig, ImitationError, run_imitation};
+use dex_trainer::files::demos::{DemoSet, RecordMode};
 use dex_trainer::learn::bc::BcConfig;
+use dex_trainer::pipeline::imitation::{ImitationConfig, ImitationError, run_imitation};
 
 fn tiny() -> ImitationConfig {
     ImitationConfig {
@@ -36,7 +36,7 @@ fn rounds_leave_their_files_and_resume() {
     let cfg = tiny();
     let mut rounds = 0;
     let s = run_imitation(&scene, &cfg, &dir, &mut |e| {
-        if let dex_trainer::imitation::ImitationEvent::Round(_) = e {
+        if let dex_trainer::pipeline::imitation::ImitationEvent::Round(_) = e {
             rounds += 1;
         }
     })
@@ -72,7 +72,10 @@ fn rounds_leave_their_files_and_resume() {
     // Resuming a finished run does no work and keeps the same policy.
     let mut events = 0;
     let again = run_imitation(&scene, &cfg, &dir, &mut |e| {
-        if !matches!(e, dex_trainer::imitation::ImitationEvent::Round(_)) {
+        if !matches!(
+            e,
+            dex_trainer::pipeline::imitation::ImitationEvent::Round(_)
+        ) {
             events += 1;
         }
     })
@@ -178,10 +181,13 @@ fn stack_runs_take_in_hand_demonstrations_as_data() {
     // A Stack policy learns from StackInHand demonstrations; not the other way round.
     let stack_set = DemoSet::load(&dir.join("demos-0.dxdm")).expect("stack file");
     assert!(
-        dex_trainer::cloning::clone_rows(&[stack_set.clone(), in_hand.clone()], Task::Stack)
-            .is_ok()
+        dex_trainer::pipeline::cloning::clone_rows(
+            &[stack_set.clone(), in_hand.clone()],
+            Task::Stack
+        )
+        .is_ok()
     );
-    assert!(dex_trainer::cloning::clone_rows(&[stack_set], Task::StackInHand).is_err());
+    assert!(dex_trainer::pipeline::cloning::clone_rows(&[stack_set], Task::StackInHand).is_err());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -8,14 +8,14 @@
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::Task;
-use dex_trainer::export::{ExportInfo, ObsNormalisation, Precision, export_actor_with};
-use dex_trainer::learn::nets::{Activation, Mlp, MlpSpec};
-use dex_trainer::learn::{DdpgConfig, Engine, Rng, RunConfig, Trainer};
-use dex_trainer::policy_import::{
+use dex_trainer::files::export::{ExportInfo, ObsNormalisation, Precision, export_actor_with};
+use dex_trainer::files::policy_import::{
     ImportError, actor_params_from_policy, normalised_actor_from_policy,
 };
-use dex_trainer::train_run::{TrainPlan, TrainRunError};
-use dex_trainer::train_settings::{SettingsError, TaskArg, TrainSettings};
+use dex_trainer::learn::nets::{Activation, Mlp, MlpSpec};
+use dex_trainer::learn::{DdpgConfig, Engine, Rng, RunConfig, Trainer};
+use dex_trainer::pipeline::train_run::{TrainPlan, TrainRunError};
+use dex_trainer::pipeline::train_settings::{SettingsError, TaskArg, TrainSettings};
 
 fn config(hidden: &[usize]) -> RunConfig {
     RunConfig {
@@ -310,7 +310,7 @@ fn the_paper_protocols_bad_settings_are_refused_before_training() {
         out: dir.join("run"),
         ..TrainSettings::default()
     };
-    settings.start.scheme = dex_trainer::train_settings::StartArg::AlongDemonstrations;
+    settings.start.scheme = dex_trainer::pipeline::train_settings::StartArg::AlongDemonstrations;
     // R = 0.
     let mut r0 = settings.clone();
     r0.run.updates_per_step = 0;

@@ -21,7 +21,7 @@ use dex_trainer::evaluate::{
     EvalSettings, action_error, episode_outcomes, evaluate_policy_file,
     heldout_observations_of_both,
 };
-use dex_trainer::export::{
+use dex_trainer::files::export::{
     calibration_observations, equalise_policy_file, quantise_policy_file,
     quantise_policy_file_calibrated,
 };
@@ -229,7 +229,8 @@ fn the_int8_export_step_reports_grid_error_and_its_own_success() {
         envelope: false,
     };
     // A quantisation-aware file: on the grid, quantised as it is, within 1% of the f32 actions.
-    let x = dex_trainer::int8_export::export_int8(TRAINED_FOR_INT8, &scene, env, &eval).unwrap();
+    let x =
+        dex_trainer::files::int8_export::export_int8(TRAINED_FOR_INT8, &scene, env, &eval).unwrap();
     assert!(x.on_grid && x.equalisation_change == 0.0);
     assert!(!x.needs_aware_training(), "worst error {}", x.worst_error);
     assert!(x.heldout > 0 && x.calibration > 0);
@@ -241,7 +242,7 @@ fn the_int8_export_step_reports_grid_error_and_its_own_success() {
     assert_eq!(p.eval_episodes, 8);
     assert_eq!(p.success_rate, Some(x.eval.success_rate() as f32));
     // A file trained without quantisation is equalised first (its f32 function barely changes).
-    let y = dex_trainer::int8_export::export_int8(TRAINED, &scene, env, &eval).unwrap();
+    let y = dex_trainer::files::int8_export::export_int8(TRAINED, &scene, env, &eval).unwrap();
     assert!(!y.on_grid);
     assert!(y.equalisation_change < 1e-4, "{}", y.equalisation_change);
 }

@@ -9,12 +9,12 @@ mod common;
 use common::{bits, scene};
 
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+use dex_trainer::cell::jaco::JacoLearnEnv;
+use dex_trainer::cell::policy_demo::PolicyDemonstration;
 use dex_trainer::env::{
     Demonstration, EnvConfig, JacoEnv, StartKind, StartScheme, StartStates, Task,
 };
-use dex_trainer::jaco::JacoLearnEnv;
 use dex_trainer::learn::{Env, Rng};
-use dex_trainer::policy_demo::PolicyDemonstration;
 
 #[test]
 fn learner_env_trains_short_episodes_from_demonstrations_and_evaluates_full_ones_from_original_starts()

@@ -249,7 +249,7 @@ fn record(task: Task, seed: u64, dir: &std::path::Path) -> Result<(), BoxError> 
         write_row(&env)?;
         success = out.success;
     }
-    dex_trainer::atomic_write::write_atomic(&dir.join("qpos.csv"), csv.as_bytes())?;
+    dex_trainer::files::atomic_write::write_atomic(&dir.join("qpos.csv"), csv.as_bytes())?;
     println!(
         "recorded {task:?} seed {seed} (success {success}) into {}",
         dir.display()
@@ -382,7 +382,7 @@ fn trace(
         "reset": bits(&first),
         "steps": records,
     });
-    dex_trainer::atomic_write::write_atomic(out, serde_json::to_string(&doc)?.as_bytes())?;
+    dex_trainer::files::atomic_write::write_atomic(out, serde_json::to_string(&doc)?.as_bytes())?;
     println!(
         "wrote {steps} steps of {task:?} from seed {seed} to {}",
         out.display()

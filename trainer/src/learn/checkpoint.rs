@@ -1,7 +1,7 @@
 //! Checkpoints of a whole [`Trainer`]: parameters, targets, Adam moments, generators, counters and
 //! replay buffers, so a resumed one-worker run continues bit-identically.
 //!
-//! Writing is atomic ([`crate::atomic_write::write_atomic`]): the file is written to a temporary file
+//! Writing is atomic ([`crate::files::atomic_write::write_atomic`]): the file is written to a temporary file
 //! next to `PATH`, flushed to disk, renamed over `PATH`, and the folder flushed, so a crash or a power
 //! cut leaves either the previous checkpoint or the new one, never a torn file.
 //!
@@ -358,10 +358,11 @@ impl Trainer {
         Ok(t)
     }
 
-    /// Writes a checkpoint atomically and durably ([`crate::atomic_write::write_atomic`]: a
+    /// Writes a checkpoint atomically and durably ([`crate::files::atomic_write::write_atomic`]: a
     /// temporary file, fsync, rename, fsync of the folder).
     pub fn save(&self, path: &Path) -> Result<(), LearnError> {
-        crate::atomic_write::write_atomic(path, &self.to_checkpoint_bytes()).map_err(io_err(path))
+        crate::files::atomic_write::write_atomic(path, &self.to_checkpoint_bytes())
+            .map_err(io_err(path))
     }
 
     /// Reads a checkpoint written by [`Trainer::save`].

@@ -6,14 +6,14 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::Args;
 
-use dex_trainer::demos::{DEMO_SEED, DemoSet, RecordMode, RecordSettings, record_with};
+use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::env::{Demonstrator, MarkovDemonstrator};
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
+use dex_trainer::files::demos::{DEMO_SEED, DemoSet, RecordMode, RecordSettings, record_with};
 use dex_trainer::learn::bc::BcConfig;
-use dex_trainer::policy_demo::{DemoSource, PolicyDemonstration};
 
-use dex_trainer::train_settings::{RewardArg, TaskArg};
+use dex_trainer::pipeline::train_settings::{RewardArg, TaskArg};
 
 /// `trainer demos` flags.
 #[derive(Args, Debug)]
@@ -233,11 +233,15 @@ pub fn clone(a: &CloneArgs) -> anyhow::Result<()> {
         "clone [{elapsed_precise}] [{bar:30}] {pos}/{len} steps {msg}",
     );
     let start = std::time::Instant::now();
-    let (policy, file) =
-        dex_trainer::cloning::clone_to_policy_file(&sets, task.task(), &cfg, &mut |step, loss| {
+    let (policy, file) = dex_trainer::pipeline::cloning::clone_to_policy_file(
+        &sets,
+        task.task(),
+        &cfg,
+        &mut |step, loss| {
             pb.set_position(step);
             pb.set_message(format!("mse {loss:.4}"));
-        })?;
+        },
+    )?;
     pb.finish_and_clear();
     write_policy(&a.out, &file)?;
     println!(
@@ -272,6 +276,6 @@ fn write_policy(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(d)?;
     }
-    dex_trainer::atomic_write::write_atomic(path, bytes)
+    dex_trainer::files::atomic_write::write_atomic(path, bytes)
         .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -84,8 +84,8 @@ mod with_mpi {
     use dex_trainer::learn::distributed::point_mass::{point_mass_config, run_point_mass};
     use dex_trainer::learn::distributed::server::Server;
     use dex_trainer::learn::distributed::{ExchangeStats, Transport};
-    use dex_trainer::train_run::TrainPlan;
-    use dex_trainer::train_settings;
+    use dex_trainer::pipeline::train_run::TrainPlan;
+    use dex_trainer::pipeline::train_settings;
     use std::time::Instant;
 
     /// Exit code of rank 0 after a failed distributed run (passed to `MPI_Abort`).

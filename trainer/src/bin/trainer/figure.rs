@@ -16,9 +16,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::Deserialize;
 
-use dex_trainer::plot::Condition;
-use dex_trainer::run_plots::{plot_conditions, read_run};
-use dex_trainer::train_settings::{self, TrainSettings};
+use dex_trainer::pipeline::plot::Condition;
+use dex_trainer::pipeline::run_plots::{plot_conditions, read_run};
+use dex_trainer::pipeline::train_settings::{self, TrainSettings};
 
 use crate::TrainArgs;
 use crate::train;

@@ -8,9 +8,9 @@ use indicatif::ProgressBar;
 
 use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
-use dex_trainer::imitation::{ImitationConfig, ImitationEvent, run_imitation};
+use dex_trainer::pipeline::imitation::{ImitationConfig, ImitationEvent, run_imitation};
 
-use dex_trainer::train_settings::TaskArg;
+use dex_trainer::pipeline::train_settings::TaskArg;
 
 /// `trainer imitate` flags (override the defaults of `ImitationConfig`).
 #[derive(Args, Debug)]

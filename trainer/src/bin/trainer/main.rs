@@ -24,7 +24,9 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 
 use dex_trainer::env::seeds::EVAL_SEED;
-use dex_trainer::train_settings::{PresetArg, RewardArg, StartArg, TaskArg, TrainSettings};
+use dex_trainer::pipeline::train_settings::{
+    PresetArg, RewardArg, StartArg, TaskArg, TrainSettings,
+};
 
 #[derive(Parser)]
 #[command(
@@ -298,7 +300,7 @@ struct ExportArgs {
 
 /// `trainer export --int8`: quantises the exported f32 file, evaluates the int8 file through the
 /// runtime (same episodes and start seeds as the f32 export's evaluation) and writes it with its own
-/// success rate (the steps: `dex_trainer::int8_export`).
+/// success rate (the steps: `dex_trainer::files::int8_export`).
 fn export_int8(
     f32_path: &std::path::Path,
     out: &std::path::Path,
@@ -316,7 +318,7 @@ fn export_int8(
         can_quantisation: true,
         envelope: false,
     };
-    let x = dex_trainer::int8_export::export_int8(&f32_file, &scene, env, &eval)?;
+    let x = dex_trainer::files::int8_export::export_int8(&f32_file, &scene, env, &eval)?;
     if x.on_grid {
         println!(
             "the f32 weights are on the int8 grid (quantisation-aware training): quantised as they are"
@@ -338,7 +340,7 @@ fn export_int8(
              `--quantise-aware-from` (docs/training.md, \"Training for int8\")"
         );
     }
-    dex_trainer::atomic_write::write_atomic(out, &x.file)
+    dex_trainer::files::atomic_write::write_atomic(out, &x.file)
         .with_context(|| format!("cannot write {}", out.display()))?;
     let weight_bytes = |bytes: &[u8]| -> anyhow::Result<usize> {
         let aligned = dex_runtime::aligned::aligned_copy(bytes);

@@ -1,5 +1,5 @@
 //! The `trainer train`, `eval`, `export` and `plot` front ends: flags to settings, the library's
-//! pipeline ([`dex_trainer::train_run`]), and progress bars and lines on the terminal.
+//! pipeline ([`dex_trainer::pipeline::train_run`]), and progress bars and lines on the terminal.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -10,13 +10,13 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use dex_runtime::interface::ACT_DIM;
-use dex_trainer::atomic_write::write_atomic;
 use dex_trainer::env::Scene;
 use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
+use dex_trainer::files::atomic_write::write_atomic;
+use dex_trainer::files::result_record::{RecordContext, ResultRecord};
 use dex_trainer::learn::Trainer;
-use dex_trainer::result_record::{RecordContext, ResultRecord};
-use dex_trainer::train_run::{TrainEvent, TrainPlan, export_selected};
-use dex_trainer::train_settings::{self, PresetArg, RewardArg, TaskArg, TrainSettings};
+use dex_trainer::pipeline::train_run::{TrainEvent, TrainPlan, export_selected};
+use dex_trainer::pipeline::train_settings::{self, PresetArg, RewardArg, TaskArg, TrainSettings};
 
 use crate::{EvalArgs, TrainArgs};
 
@@ -399,7 +399,10 @@ pub fn warn_malformed(dir: &Path, bad: usize) {
 
 /// `trainer plot`: learning curves of every seed in a run folder.
 pub fn plot_run(run: &Path) -> anyhow::Result<Vec<PathBuf>> {
-    Ok(dex_trainer::run_plots::plot_run(run, &mut warn_malformed)?)
+    Ok(dex_trainer::pipeline::run_plots::plot_run(
+        run,
+        &mut warn_malformed,
+    )?)
 }
 
 /// `trainer export`: the policy `trainer train` exports for a seed (the best checkpoint on the

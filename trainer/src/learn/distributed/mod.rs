@@ -4,7 +4,7 @@
 //! - Rank 0 ([`server::Server`]) owns the actor and critic parameters, their targets, Adam's
 //!   shared second moments and the update and transition counters: the state of a [`Trainer`]
 //!   that never runs workers itself. It applies what the worker ranks push, moves the targets,
-//!   logs their evaluations, and (through [`crate::train_run`]) writes checkpoints, selects,
+//!   logs their evaluations, and (through [`crate::pipeline::train_run`]) writes checkpoints, selects,
 //!   exports and plots exactly as a local run does.
 //! - Ranks 1..N-1 ([`worker`]) each run a local [`Trainer`] with W worker threads (their own
 //!   environments, replay and Adam first moments, today's ADPG-R among the threads). The run's

@@ -175,7 +175,7 @@ impl Trainer {
     }
 
     /// Starts a fresh run's actor and its target from `params` (e.g. an exported clone read by
-    /// `crate::policy_import`); the critic keeps its fresh initialisation. Fails once the run has
+    /// `crate::files::policy_import`); the critic keeps its fresh initialisation. Fails once the run has
     /// stepped or updated, and when `params` does not fit the actor.
     pub fn set_initial_actor(&mut self, params: Vec<f32>) -> Result<(), LearnError> {
         let p = self.progress();

@@ -18,10 +18,10 @@ use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
 use serde::{Deserialize, Serialize};
 
+use crate::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use crate::env::{Demonstration, EnvConfig, EnvError, JacoEnv, Scene, Task};
 use crate::evaluate::episode_seed;
 use crate::learn::Rng;
-use crate::policy_demo::{DemoSource, PolicyDemonstration};
 
 // Start seed of recorded demonstrations (`env::seeds::DEMO_SEED`, apart from the other ranges
 // there), under its old path.
@@ -381,7 +381,7 @@ impl DemoSet {
         buf
     }
 
-    /// Writes the file atomically and durably ([`crate::atomic_write::write_atomic`]), creating
+    /// Writes the file atomically and durably ([`crate::files::atomic_write::write_atomic`]), creating
     /// its folder if needed.
     pub fn save(&self, path: &Path) -> Result<(), DemoError> {
         let io = |source| DemoError::Io {
@@ -391,7 +391,7 @@ impl DemoSet {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        crate::atomic_write::write_atomic(path, &self.to_bytes()).map_err(io)
+        crate::files::atomic_write::write_atomic(path, &self.to_bytes()).map_err(io)
     }
 
     /// Parses a file's bytes (`path` only names it in errors); checks magic, checksum, version,

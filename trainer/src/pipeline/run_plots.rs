@@ -1,11 +1,11 @@
 //! Learning curves of run folders: the evaluation records of every seed (`seed-*/eval.jsonl`)
-//! read back, and drawn as return and success plots (PNG and SVG) with [`crate::plot`].
+//! read back, and drawn as return and success plots (PNG and SVG) with [`crate::pipeline::plot`].
 
 use std::path::{Path, PathBuf};
 
 use crate::learn::EvalRecord;
-use crate::plot::{Condition, Metric, PlotError, XAxis, plot, read_eval_log};
-use crate::train_settings::TrainSettings;
+use crate::pipeline::plot::{Condition, Metric, PlotError, XAxis, plot, read_eval_log};
+use crate::pipeline::train_settings::TrainSettings;
 
 /// Why a run folder could not be read or plotted.
 #[derive(Debug, thiserror::Error)]

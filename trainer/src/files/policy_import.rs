@@ -161,7 +161,7 @@ fn read(file: &[u8], task: Task, actor: &Mlp, fold: bool) -> Result<NormalisedAc
             file: file_features,
         });
     }
-    let run = crate::export::task_code(task);
+    let run = crate::files::export::task_code(task);
     if body.task != run {
         return Err(ImportError::Task {
             file: body.task,

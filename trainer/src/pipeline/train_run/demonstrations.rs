@@ -11,7 +11,7 @@ pub(super) fn demonstrations(
     scene: &Scene,
     on_event: &mut dyn FnMut(TrainEvent<'_>),
 ) -> Result<Option<DemoBuffer>, TrainRunError> {
-    use crate::demos::{DEMO_SEED, DemoSet, RecordSettings, demo_buffer, record_with};
+    use crate::files::demos::{DEMO_SEED, DemoSet, RecordSettings, demo_buffer, record_with};
     if !s.run.demos.uses_demos() {
         return Ok(None);
     }

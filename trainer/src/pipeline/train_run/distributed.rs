@@ -144,7 +144,7 @@ impl TrainPlan {
 /// The demonstrations of a worker rank: the files rank 0 uses (given, or recorded into the seed
 /// folder by rank 0 before the ranks started).
 fn load_demonstrations(s: &TrainSettings, dir: &Path) -> Result<Option<DemoBuffer>, TrainRunError> {
-    use crate::demos::{DemoSet, demo_buffer};
+    use crate::files::demos::{DemoSet, demo_buffer};
     if !s.run.demos.uses_demos() {
         return Ok(None);
     }

@@ -3,8 +3,8 @@
 //! prints what this returns.
 //!
 //! Steps: calibration observations from the f32 policy's own episodes
-//! ([`crate::export::calibration_observations`]); equalisation of the f32 weights
-//! ([`crate::export::equalise_policy_file`], skipped for a file already on the int8 grid);
+//! ([`crate::files::export::calibration_observations`]); equalisation of the f32 weights
+//! ([`crate::files::export::equalise_policy_file`], skipped for a file already on the int8 grid);
 //! post-training quantisation; the int8 file's worst action error against the f32 file on
 //! held-out observations of both; the int8 file's success over the run's evaluation starts, which
 //! goes into its provenance.
@@ -13,7 +13,7 @@ use crate::env::{EnvConfig, Scene};
 use crate::evaluate::{
     EvalSettings, PolicyEval, action_error, evaluate_policy_file, heldout_observations_of_both,
 };
-use crate::export::{
+use crate::files::export::{
     ExportError, calibration_observations, equalise_policy_file, quantise_policy_file,
 };
 

@@ -3,12 +3,12 @@
 use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
+use crate::cell::policy_demo::DemoSource;
 use crate::env::{
     Demonstrator, EnvConfig, EnvError, JacoEnv, MarkovDemonstrator, Observation, Scene,
     StartScheme, StartStates,
 };
 use crate::learn::{Env, Rng, Step};
-use crate::policy_demo::DemoSource;
 
 /// A [`JacoEnv`] driven by the learner: episodes start from seeds drawn from the learner's generator and
 /// end at the step budget (a time limit: the last state is still bootstrapped).

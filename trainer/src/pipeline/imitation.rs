@@ -17,14 +17,14 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::atomic_write::write_atomic;
-use crate::cloning::{CloneError, clone_to_policy_file};
-use crate::demos::{DEMO_SEED, DemoError, DemoSet, RecordMode, RecordSettings, record_with};
+use crate::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use crate::env::{MarkovDemonstrator, Scene, Task};
 use crate::evaluate::{EvalError, EvalSettings, evaluate_policy_file};
+use crate::files::atomic_write::write_atomic;
+use crate::files::demos::{DEMO_SEED, DemoError, DemoSet, RecordMode, RecordSettings, record_with};
 use crate::learn::EvalRecord;
 use crate::learn::bc::BcConfig;
-use crate::policy_demo::{DemoSource, PolicyDemonstration};
+use crate::pipeline::cloning::{CloneError, clone_to_policy_file};
 
 // Start seed of the per-round selection evaluation (`env::seeds::SELECTION_SEED`, checkpoint
 // selection's seed), under its old path.
@@ -232,7 +232,7 @@ pub enum ImitationError {
     Eval(#[from] EvalError),
     /// Another process works in the run folder.
     #[error(transparent)]
-    Locked(#[from] crate::run_lock::RunLockError),
+    Locked(#[from] crate::pipeline::run_lock::RunLockError),
 }
 
 /// What a run reports while it works.
@@ -286,7 +286,7 @@ pub fn run_imitation(
     cfg.validate()?;
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     // Held until the run ends: a second run in this folder is refused at once.
-    let _lock = crate::run_lock::RunLock::acquire(dir)?;
+    let _lock = crate::pipeline::run_lock::RunLock::acquire(dir)?;
     let settings_path = dir.join("settings.json");
     let settings = serde_json::to_string_pretty(cfg).unwrap_or_default();
     // Compared as settings, not text: a folder written before a setting existed (it takes its

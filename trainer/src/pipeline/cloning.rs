@@ -2,9 +2,9 @@
 //! and labels go to [`crate::learn::bc::train_bc`], the cloned actor leaves through the exporter with
 //! its fixed input scaling, and the file is evaluated through the runtime like every other policy.
 
-use crate::demos::DemoSet;
 use crate::env::Task;
-use crate::export::{ExportError, ExportInfo, export_scaled_actor};
+use crate::files::demos::DemoSet;
+use crate::files::export::{ExportError, ExportInfo, export_scaled_actor};
 use crate::learn::LearnError;
 use crate::learn::bc::{BcConfig, BcPolicy, train_bc};
 use dex_runtime::features::{INPUT_MAX, task_features};
@@ -36,7 +36,7 @@ pub enum CloneError {
 /// The observation and label rows of `sets` (each of `task` or a task it learns from,
 /// [`Task::learns_from`]), flattened.
 pub fn clone_rows(sets: &[DemoSet], task: Task) -> Result<(Vec<f32>, Vec<f32>), CloneError> {
-    let wanted = crate::demos::task_name(task);
+    let wanted = crate::files::demos::task_name(task);
     let mut obs = Vec::new();
     let mut labels = Vec::new();
     for s in sets {

@@ -17,19 +17,19 @@ use std::sync::atomic::AtomicBool;
 
 use dex_runtime::interface::ACT_DIM;
 
-use crate::demos::DemoError;
+use crate::cell::jaco::JacoLearnEnv;
+use crate::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use crate::env::{Demonstrator, EnvError, Scene, StartStates};
 use crate::evaluate::{EvalError, EvalSettings, PolicyEval, evaluate_policy_file};
-use crate::export::{ExportError, ExportInfo, ObsNormalisation, export_actor};
-use crate::jaco::JacoLearnEnv;
+use crate::files::demos::DemoError;
+use crate::files::export::{ExportError, ExportInfo, ObsNormalisation, export_actor};
 use crate::learn::distributed::server::Server;
 use crate::learn::distributed::worker::WorkerRank;
 use crate::learn::distributed::{DistributedConfig, DistributedError, ExchangeStats, Transport};
 use crate::learn::{DemoBuffer, EvalRecord, Event, LearnError, Progress, RunSummary, Trainer};
-use crate::policy_demo::{DemoSource, PolicyDemonstration};
-use crate::run_lock::{RunLock, RunLockError};
-use crate::run_plots::{RunPlotError, plot_run};
-use crate::train_settings::{SettingsError, TrainSettings};
+use crate::pipeline::run_lock::{RunLock, RunLockError};
+use crate::pipeline::run_plots::{RunPlotError, plot_run};
+use crate::pipeline::train_settings::{SettingsError, TrainSettings};
 
 mod demonstrations;
 mod distributed;
@@ -97,7 +97,7 @@ pub enum TrainRunError {
         /// The policy file.
         path: PathBuf,
         /// The cause.
-        source: crate::policy_import::ImportError,
+        source: crate::files::policy_import::ImportError,
     },
     /// The start states could not be built.
     #[error("invalid [start] settings")]
@@ -224,10 +224,10 @@ fn io_at(path: &Path) -> impl FnOnce(std::io::Error) -> TrainRunError + '_ {
     }
 }
 
-/// Writes a run-folder file with [`crate::atomic_write::write_atomic`] (atomic and durable);
+/// Writes a run-folder file with [`crate::files::atomic_write::write_atomic`] (atomic and durable);
 /// a failure is a [`TrainRunError::Write`] of `path`.
 fn write_file(path: &Path, bytes: &[u8]) -> Result<(), TrainRunError> {
-    crate::atomic_write::write_atomic(path, bytes).map_err(|source| TrainRunError::Write {
+    crate::files::atomic_write::write_atomic(path, bytes).map_err(|source| TrainRunError::Write {
         path: path.to_path_buf(),
         source,
     })
@@ -343,7 +343,7 @@ enum InitActor {
     /// Normalisation folded into the first layer (raw observations).
     Folded(Vec<f32>),
     /// The file's layers and its normalisation, which the run keeps frozen.
-    Normalised(crate::policy_import::NormalisedActor),
+    Normalised(crate::files::policy_import::NormalisedActor),
 }
 
 impl TrainPlan {
@@ -365,7 +365,7 @@ impl TrainPlan {
                         source,
                     }
                 })?;
-                let run = crate::export::task_code(settings.task.task());
+                let run = crate::files::export::task_code(settings.task.task());
                 if task != run {
                     return Err(TrainRunError::DemonstratorTask {
                         path: path.clone(),
@@ -392,10 +392,14 @@ impl TrainPlan {
                 )?;
                 let task = settings.task.task();
                 let imported = if settings.run.obs_norm.frozen_from_init {
-                    crate::policy_import::normalised_actor_from_policy(&bytes, task, &nets.actor)
-                        .map(InitActor::Normalised)
+                    crate::files::policy_import::normalised_actor_from_policy(
+                        &bytes,
+                        task,
+                        &nets.actor,
+                    )
+                    .map(InitActor::Normalised)
                 } else {
-                    crate::policy_import::actor_params_from_policy(&bytes, task, &nets.actor)
+                    crate::files::policy_import::actor_params_from_policy(&bytes, task, &nets.actor)
                         .map(InitActor::Folded)
                 };
                 Some(imported.map_err(|source| TrainRunError::InitPolicy {

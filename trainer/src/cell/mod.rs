@@ -1,0 +1,7 @@
+//! The Jaco cell as the learner sees it: glue between `dex-env` and the learner's traits.
+//!
+//! - [`jaco`]: the environment behind the learner's [`crate::learn::Env`] trait.
+//! - [`policy_demo`]: a policy file as the demonstration of the start-state scheme.
+
+pub mod jaco;
+pub mod policy_demo;

@@ -1,0 +1,17 @@
+//! Files in and out of the learner: what a run reads and writes besides its checkpoints.
+//!
+//! - [`atomic_write`]: the one atomic, durable file write (temporary file, fsync, rename, fsync of
+//!   the folder) behind every file that must survive a crash: checkpoints, demo and policy files,
+//!   run settings and logs.
+//! - [`demos`]: demonstrations recorded as data (versioned, checksummed `.dxdm` files).
+//! - [`export`]: a trained actor as a `dex-policy` file; [`int8_export`]: its int8 twin
+//!   (calibrate, equalise, quantise, measure).
+//! - [`policy_import`]: a policy file back into the learner's actor (the start of RL fine-tuning).
+//! - [`result_record`]: an evaluation as a `docs/results/` record.
+
+pub mod atomic_write;
+pub mod demos;
+pub mod export;
+pub mod int8_export;
+pub mod policy_import;
+pub mod result_record;

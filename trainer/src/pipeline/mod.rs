@@ -1,0 +1,20 @@
+//! Run pipelines: what turns settings into a run folder, and a run folder into results.
+//!
+//! - [`train_settings`]: the settings of a training run (defaults < TOML file < flags), validated
+//!   once, and kept in each run folder as `settings.toml`.
+//! - [`train_run`]: the training pipeline of a run folder, for any front end: per seed train with
+//!   checkpoints (fresh or resumed), select the best checkpoint, export and evaluate it; progress
+//!   as events.
+//! - [`cloning`]: behaviour cloning of demonstration files into a policy file; [`imitation`]:
+//!   cloning plus DAgger rounds with the Markov demonstrator as the oracle (`trainer imitate`).
+//! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
+//! - [`run_plots`]: a run folder's learning curves, drawn by [`plot`] (mean and min-max band over
+//!   seeds, like the paper's figures).
+
+pub mod cloning;
+pub mod imitation;
+pub mod plot;
+pub mod run_lock;
+pub mod run_plots;
+pub mod train_run;
+pub mod train_settings;
