@@ -4,6 +4,7 @@ docs/results/*.json (standard library only).
 
     python3 scripts/results.py           # (re)write docs/results.md
     python3 scripts/results.py --check   # exit 1 when docs/results.md differs from what the records give
+    python3 scripts/results.py --gifs-drawn  # after redrawing the README's GIFs: record their hashes
 
 A record comes from `trainer eval POLICY --record docs/results/NAME.json --section KEY --what LABEL`
 (fields below; add `order`, `paper`, `session` or `history` by hand where wanted).
@@ -21,12 +22,15 @@ import argparse
 import hashlib
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 RECORDS = ROOT / "docs" / "results"
 PAGE = ROOT / "docs" / "results.md"
+# The README's GIFs of the shipped policies: which file each shows, and the command that drew it.
+GIFS = ROOT / "docs" / "figures" / "policy-gifs.json"
 
 REQUIRED = {
     "section": str,
@@ -144,11 +148,53 @@ def load():
     return records, errors
 
 
+def sha256(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def load_gifs(refresh=False):
+    """Reads the GIF manifest and checks each GIF and the policy file it shows against the
+    sha256s recorded when it was drawn; with `refresh`, records the current ones instead.
+    Returns (entries, errors)."""
+    name = GIFS.relative_to(ROOT)
+    try:
+        manifest = json.loads(GIFS.read_text(encoding="utf-8"))
+        entries = manifest["gifs"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        return [], [f"{name}: cannot read: {e}"]
+    errors = []
+    for g in entries:
+        if not all(isinstance(g.get(k), str) for k in ("gif", "policy", "command", "shows")):
+            errors.append(f"{name}: an entry lacks gif, policy, command or shows: {g}")
+            continue
+        gif, policy = ROOT / g["gif"], ROOT / g["policy"]
+        missing = [p for p in (gif, policy) if not p.is_file()]
+        if missing:
+            errors.append(f"{name}: {', '.join(str(p.relative_to(ROOT)) for p in missing)} not in the repository")
+            continue
+        if refresh:
+            g["gif_sha256"], g["policy_sha256"] = sha256(gif), sha256(policy)
+            continue
+        if g.get("policy_sha256") != sha256(policy):
+            errors.append(
+                f"{g['gif']} shows another {g['policy']} than the one in the repository: redraw it with "
+                f"`{g['command']}`, then run `python3 scripts/results.py --gifs-drawn`"
+            )
+        elif g.get("gif_sha256") != sha256(gif):
+            errors.append(
+                f"{g['gif']} is not the GIF {name} lists: if it was redrawn with its command, "
+                "run `python3 scripts/results.py --gifs-drawn`"
+            )
+    if refresh and not errors:
+        GIFS.write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+    return entries, errors
+
+
 def cell(text):
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
-def render(records):
+def render(records, gifs):
     out = [
         "# Results: the headline figures",
         "",
@@ -222,6 +268,15 @@ def render(records):
         out.append("How each figure was measured: " + "; ".join(
             sorted({r["evaluation"] for r in rows})) + ". Where it was first reported: " + "; ".join(
             sorted({r["source"] for r in rows})) + ".")
+    if gifs:
+        out += ["", "## The README's GIFs", "",
+                "Which policy file each GIF of the README shows (the file's sha256 when the GIF was "
+                "drawn; the check above fails when either changes) and the command that drew it.", "",
+                "| GIF | shows | policy file | command |", "|---|---|---|---|"]
+        for g in gifs:
+            out.append("| " + " | ".join(cell(c) for c in (
+                f"[{Path(g['gif']).name}]({os.path.relpath(ROOT / g['gif'], PAGE.parent)})", g["shows"],
+                f"`{g['policy']}` (sha256 `{g['policy_sha256'][:12]}`)", f"`{g['command']}`")) + " |")
     return "\n".join(out) + "\n"
 
 
@@ -229,13 +284,24 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true",
                     help="do not write; exit 1 when docs/results.md is stale or a record is wrong")
+    ap.add_argument("--gifs-drawn", action="store_true",
+                    help=f"record the current sha256s of the GIFs in {GIFS.relative_to(ROOT)} and their policy files")
     args = ap.parse_args()
+    if args.gifs_drawn:
+        _, errors = load_gifs(refresh=True)
+        for e in errors:
+            print(f"error: {e}", file=sys.stderr)
+        if errors:
+            sys.exit(1)
+        print(f"recorded the GIFs' and policy files' sha256 in {GIFS.relative_to(ROOT)}")
     records, errors = load()
+    gifs, gif_errors = load_gifs()
+    errors += gif_errors
     if errors:
         for e in errors:
             print(f"error: {e}", file=sys.stderr)
         sys.exit(1)
-    page = render(records)
+    page = render(records, gifs)
     if args.check:
         current = PAGE.read_text(encoding="utf-8") if PAGE.exists() else None
         if current != page:
