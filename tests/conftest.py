@@ -128,6 +128,25 @@ class Sim:
         assert _read_message(s) == "< hi >"
         return s
 
+    def settle(self, *listeners, probe_id=0x7E5):
+        """Returns once every python-can bus in `listeners` is subscribed: a probe frame sent from
+        another connection (again every 50 ms) has reached each of them. The event to wait for
+        instead of a sleep after connecting; the probe and everything before it are consumed."""
+        sender = self.raw()
+        sender.sendall(b"< open vcan0 >< rawmode >")
+        deadline = time.monotonic() + 5.0
+        for rx in listeners:
+            while True:
+                assert time.monotonic() < deadline, "a client did not subscribe within 5 s"
+                sender.sendall(f"< send {probe_id:X} 1 A5 >".encode())
+                got = collect(rx, 0.05, lambda m: m.arbitration_id == probe_id)
+                if any(m.arbitration_id == probe_id for _, m in got):
+                    break
+        for rx in listeners:  # drop probes still queued for the ones settled first
+            collect(rx, 0.05)
+        sender.close()
+        self.sockets.remove(sender)
+
     def control(self, command: str) -> str:
         s = self.raw()
         s.sendall(f"< {command} >".encode())

@@ -13,7 +13,7 @@ from conftest import collect
 def test_frames_reach_every_other_client_in_order_with_timestamps(sim):
     s = sim(None)  # controller node without policy: pre-operational chatter on the bus
     a, b, c = s.bus(), s.bus(), s.bus()
-    time.sleep(0.05)
+    s.settle(a, b, c)
     for i in range(20):
         a.send(can.Message(arbitration_id=0x123, data=[i, 0xFF], is_extended_id=False))
     a.send(can.Message(arbitration_id=0x7, data=[], is_extended_id=False))
@@ -48,7 +48,7 @@ def test_garbage_and_dropped_connections_do_not_take_the_bus_down(sim):
     r.shutdown(socket.SHUT_RDWR)
     r.close()
     s.sockets.remove(r)
-    time.sleep(0.1)
+    s.settle(a, b)
     a.send(can.Message(arbitration_id=0x321, data=[1, 2, 3], is_extended_id=False))
     got = [m for _, m in collect(b, 0.3) if m.arbitration_id == 0x321]
     assert got and bytes(got[0].data) == b"\x01\x02\x03"
@@ -67,7 +67,17 @@ def test_slow_client_loses_frames_alone(sim):
     fast = s.raw()
     fast.sendall(b"< open vcan0 >< rawmode >")
     sender = s.raw()
-    time.sleep(0.1)
+    # The fast reader is subscribed once a probe from the sender reaches it (the slow one never
+    # reads; it subscribed before the fast one did, on the bus's one event loop).
+    fast.settimeout(0.05)
+    seen, deadline = b"", time.monotonic() + 5.0
+    while b"< frame 7E5 " not in seen:
+        assert time.monotonic() < deadline, "the fast reader did not subscribe within 5 s"
+        sender.sendall(b"< send 7E5 1 A5 >")
+        try:
+            seen += fast.recv(65536)
+        except socket.timeout:
+            pass
     n = 20000
     received = [0]
 

@@ -69,6 +69,23 @@ fn records(out: &Path) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// Waits until `child` holds the run lock `lock` (its pid is in the file): the event that says it
+/// was not refused. Fails if it exits first or takes more than a minute.
+fn holds_lock(child: &mut std::process::Child, lock: &Path, who: &str) {
+    let pid = child.id().to_string();
+    let t0 = Instant::now();
+    while std::fs::read_to_string(lock).map_or(true, |s| s.trim() != pid) {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("{who} ended ({status}) without taking {}", lock.display());
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{who}: no lock taken"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 #[test]
 fn a_second_trainer_on_a_busy_run_folder_is_refused_at_once() {
     let dir = tmp("lock");
@@ -77,11 +94,7 @@ fn a_second_trainer_on_a_busy_run_folder_is_refused_at_once() {
     let mut first = spawn(&cfg, &out, false);
     // Wait until the first holds the lock (it writes its pid into the lock file).
     let lock = out.join("seed-0/.lock");
-    let t0 = Instant::now();
-    while std::fs::read_to_string(&lock).map_or(true, |s| s.trim().is_empty()) {
-        assert!(t0.elapsed() < Duration::from_secs(60), "no lock taken");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    holds_lock(&mut first, &lock, "the first run");
     let args = [
         "train",
         "--config",
@@ -116,10 +129,10 @@ fn a_second_trainer_on_a_busy_run_folder_is_refused_at_once() {
     ])
     .spawn()
     .expect("spawn trainer");
-    std::thread::sleep(Duration::from_millis(1500));
-    assert!(
-        other_seed.try_wait().unwrap().is_none(),
-        "a job on another seed of the run was refused"
+    holds_lock(
+        &mut other_seed,
+        &out.join("seed-1/.lock"),
+        "a job on another seed of the run",
     );
     other_seed.kill().unwrap();
     other_seed.wait().unwrap();
@@ -127,11 +140,7 @@ fn a_second_trainer_on_a_busy_run_folder_is_refused_at_once() {
     first.kill().unwrap();
     first.wait().unwrap();
     let mut third = spawn(&cfg, &out, true);
-    std::thread::sleep(Duration::from_millis(1500));
-    assert!(
-        third.try_wait().unwrap().is_none(),
-        "the resumed run after kill -9 was refused"
-    );
+    holds_lock(&mut third, &lock, "the resumed run after kill -9");
     third.kill().unwrap();
     third.wait().unwrap();
     let _ = std::fs::remove_dir_all(&dir);
