@@ -246,3 +246,38 @@ fn the_int8_export_step_reports_grid_error_and_its_own_success() {
     assert!(!y.on_grid);
     assert!(y.equalisation_change < 1e-4, "{}", y.equalisation_change);
 }
+
+/// A clone of the imitation learner takes the task features and clips its normalised inputs at
+/// +-5 (`ObsScaling`), a clip that binds on some inputs: the calibrated export folds no input
+/// then (folding would move each input's clip), so the f32 function stays that of the file;
+/// cross-layer equalisation still applies, and the int8 file takes the features too.
+#[test]
+fn a_featured_clone_with_a_binding_clip_keeps_its_f32_function() {
+    let shipped = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../policies/grasp.dxpl"
+    ))
+    .unwrap();
+    let scene = Scene::load().unwrap();
+    let env = EnvConfig::new(Task::Grasp);
+    let calibration = calibration(&shipped, &scene, env);
+    let eq = equalise_policy_file(&shipped, &calibration).unwrap();
+    assert!(eq.max_f32_change <= 1e-5, "{}", eq.max_f32_change);
+    let (int8, _) = quantise_policy_file_calibrated(&shipped, None, &calibration).unwrap();
+    let observations = heldout(&shipped, &scene, env, &int8);
+    let f32_change = action_error(&shipped, &eq.file, &observations).unwrap();
+    assert!(f32_change.iter().all(|&e| e <= 1e-5), "{f32_change:?}");
+    let worst = action_error(&shipped, &int8, &observations)
+        .unwrap()
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
+    // Measured 0.047 (dev-2c): post-training quantisation of a clone not trained for int8, above
+    // the 1% a quantisation-aware policy keeps (`trainer export --int8` warns at 1%).
+    eprintln!("featured Grasp clone, int8 worst action error {worst:.4} of a joint's range");
+    assert!(worst < 0.1, "{worst}");
+    let aligned = aligned_copy(&int8);
+    let view = PolicyView::decode(aligned.as_bytes()).unwrap();
+    assert_eq!(view.body().obs_dim(), dex_runtime::features::INPUT_MAX);
+    assert!(view.layers().all(|l| l.dtype == LayerDtype::Int8));
+}

@@ -175,9 +175,17 @@ pub fn equalise_policy_file(
     let view = dex_policy::PolicyView::decode(aligned.as_bytes())?;
     let values = view.values().as_slice()?;
     let n = view.body().obs_dim();
-    if calibration.is_empty() || n != dex_runtime::interface::OBS_DIM {
+    let featured = dex_runtime::features::takes_features(n);
+    if calibration.is_empty() || (n != dex_runtime::interface::OBS_DIM && !featured) {
         return Err(ExportError::NoCalibration(n));
     }
+    // What the first layer's inputs are: the observation, or the observation followed by the task
+    // features the controller computes from it (`dex_runtime::features`).
+    let mut buf = [0.0f32; dex_runtime::features::INPUT_MAX];
+    let inputs: Vec<Vec<f32>> = calibration
+        .iter()
+        .map(|o| dex_runtime::features::policy_input(o, n, &mut buf).to_vec())
+        .collect();
     let get = |start: usize, len: usize| -> Result<Vec<f64>, ExportError> {
         values
             .get(start..start + len)
@@ -213,15 +221,17 @@ pub fn equalise_policy_file(
             relu: spec.activation == dex_policy::Activation::Relu,
         });
     }
-    // 1. Input folding.
-    if let Some(first) = layers.first_mut() {
+    // 1. Input folding, only where the file's clip never binds: folding moves each input's clip
+    // to `m_i +- clip * r_i` in the old units, which changes the function of a file whose clip is
+    // part of it (the imitation learner's `ObsScaling` clips at +-5; the RL exporter's
+    // EXPORT_OBS_CLIP clips nothing the learner saw).
+    let fold = view.body().obs_clip >= EXPORT_OBS_CLIP;
+    if let Some(first) = layers.first_mut().filter(|_| fold) {
         for i in 0..n.min(first.inputs) {
-            let (lo, hi) = calibration
-                .iter()
-                .fold((f64::MAX, f64::MIN), |(lo, hi), o| {
-                    let z = (f64::from(o[i]) - mean[i]) / scale[i];
-                    (lo.min(z), hi.max(z))
-                });
+            let (lo, hi) = inputs.iter().fold((f64::MAX, f64::MIN), |(lo, hi), o| {
+                let z = (f64::from(o[i]) - mean[i]) / scale[i];
+                (lo.min(z), hi.max(z))
+            });
             let m = 0.5 * (lo + hi);
             let r = (0.5 * (hi - lo)).max(MIN_FOLDED_RANGE);
             mean[i] += scale[i] * m;
