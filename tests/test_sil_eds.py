@@ -72,7 +72,7 @@ def test_the_eds_imports_without_warnings():
     # The objects docs/runtime.md lists, and nothing else.
     assert sorted(od.indices) == [
         0x1000, 0x1001, 0x1003, 0x1017, 0x1018, 0x1029, 0x1F50, 0x1F51, 0x1F56, 0x1F57, 0x2000,
-        0x2001,
+        0x2001, 0x2002,
     ]
     assert od[0x1F50][1].data_type == 0x0F and od[0x1F50][1].access_type == "wo"
     assert od[0x1F51][1].access_type == "rw"

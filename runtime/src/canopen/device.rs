@@ -12,6 +12,7 @@
 //! | 0x1029 | 0..=1 | error behaviour: 1; communication error (0 pre-operational, 1 no change, 2 stopped) | u8 | ro, rw |
 //! | 0x2000 | 0..=5 | active policy: 5; layout hash u32, format version u16, file CRC u32, task u8, slot generation u32 | | ro |
 //! | 0x2001 | 0 | safety envelope status (the envelope's status byte) | u8 | ro |
+//! | 0x2002 | 0..=2 | controller status: 2; controller state u8, fault code u8 | | ro |
 //!
 //! Values the controller owns (its state, its policy, the envelope) are read through
 //! [`DeviceHost`]; what the dictionary owns (heartbeat time, error history, error behaviour) is in
@@ -56,7 +57,7 @@ const RW: Access = Access::ReadWrite;
 /// The communication and manufacturer objects the dictionary serves (the table above): access
 /// and size of every request come from here ([`ObjectDictionary::entry`]), and `can/jaco.eds`
 /// is generated from it (with [`super::program::OBJECTS`]).
-pub const OBJECTS: [Object; 8] = [
+pub const OBJECTS: [Object; 9] = [
     Object {
         index: 0x1000,
         name: "Device type",
@@ -131,6 +132,16 @@ pub const OBJECTS: [Object; 8] = [
         kind: ObjectKind::Var,
         subs: &[sub(0, "Envelope status", U8, RO, Value::Live)],
     },
+    Object {
+        index: 0x2002,
+        name: "Controller status",
+        kind: ObjectKind::Record,
+        subs: &[
+            sub(0, "Highest sub-index supported", U8, RO, Value::Const(2)),
+            sub(1, "Controller state", U8, RO, Value::Live),
+            sub(2, "Fault code", U8, RO, Value::Live),
+        ],
+    },
 ];
 
 /// The identity the node reports in 0x1018.
@@ -175,8 +186,13 @@ pub trait DeviceHost {
     fn error_register(&self) -> u8;
     /// The active policy, if any.
     fn active_policy(&self) -> Option<ActivePolicy>;
-    /// The safety envelope's status byte.
+    /// The safety envelope's status byte (0x2001).
     fn envelope_status(&self) -> u8;
+    /// The controller state's code (0x2002:1: 0 boot, 1 pre-operational, 2 operational,
+    /// 3 safe-stop, 4 fault).
+    fn controller_state(&self) -> u8;
+    /// The latched fault code (0x2002:2; 0: none).
+    fn fault_code(&self) -> u8;
 }
 
 /// What the dictionary keeps between requests.
@@ -288,6 +304,8 @@ impl<'a, 'r, H: DeviceHost + ProgramHost> DeviceObjects<'a, 'r, H> {
             (0x2000, 4) => Ok(u32::from(policy.task)),
             (0x2000, 5) => Ok(self.program.slots.active().map_or(0, |f| f.generation)),
             (0x2001, 0) => Ok(u32::from(self.host().envelope_status())),
+            (0x2002, 1) => Ok(u32::from(self.host().controller_state())),
+            (0x2002, 2) => Ok(u32::from(self.host().fault_code())),
             _ => Err(SdoAbort::NoData),
         }
     }
