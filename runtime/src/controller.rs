@@ -20,8 +20,9 @@ use heapless::Vec;
 use crate::can::e2e::E2eSender;
 use crate::can::frame::CanFrame;
 use crate::can::messages::{
-    ACTION_FRAMES, NMT_ID, NmtCommand, NodeIdError, OBS_FRAMES, check_node_id, emcy_frame,
-    encode_action, heartbeat_frame, policy_info_frame, status_frame,
+    ACTION_FRAMES, ACTION_QUANTITY, NMT_ID, NmtCommand, NodeIdError, OBS_FRAMES, TPDOS,
+    check_node_id, emcy_frame, encode_action, heartbeat_frame, policy_info_frame, status_frame,
+    to_raw, tpdo_cob_id,
 };
 use crate::canopen::device::{DeviceObjects, DeviceState, Identity};
 use crate::canopen::program::{ProgramObjects, ProgramState};
@@ -31,6 +32,7 @@ use crate::envelope::{Envelope, EnvelopeConfig, EnvelopeStats};
 use crate::error::{EvalError, LoadError};
 use crate::features::{INPUT_MAX, policy_input};
 use crate::interface::{ACT_DIM, CONTROL_PERIOD_US, OBS_DIM};
+use crate::interface::{Quantity, quantity_of};
 use crate::mlp::{Mlp, Network};
 use crate::observation::{FrameOutcome, ObservationAssembler, ObservationFault, check_observation};
 use crate::slots::{PolicySlots, SlotError};
@@ -282,6 +284,8 @@ pub struct Controller<'p, const WIDTH: usize> {
     own_sample: u8,
     /// A status (heartbeat and status TPDO) went out since the flag was last cleared.
     status_sent: bool,
+    /// Bytes 0-1 of the last frame sent on each TPDO (object 0x2201).
+    tpdo_headers: [u16; TPDOS],
     next_tick_us: Option<u64>,
     cycles_since_heartbeat: u32,
     announce: bool,
@@ -314,6 +318,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             status_tx: E2eSender::default(),
             own_sample: 0,
             status_sent: false,
+            tpdo_headers: [0; TPDOS],
             next_tick_us: None,
             cycles_since_heartbeat: 0,
             announce: false,
@@ -815,9 +820,9 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             Ok(()) => {
                 let limited = self.envelope.apply(&self.obs, &mut action);
                 self.action = action;
-                for f in encode_action(self.cfg.node_id, &self.action, sample, &mut self.action_tx)
-                {
-                    let _ = out.push(f);
+                let node = self.cfg.node_id;
+                for f in encode_action(node, &self.action, sample, &mut self.action_tx) {
+                    self.push_tpdo(f, out);
                 }
                 // After the action frames, so a plant waiting for them reads them first.
                 if limited.sustained_started {
@@ -887,7 +892,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.own_sample = self.own_sample.wrapping_add(1) & 0x0F;
         let node = self.cfg.node_id;
         for f in encode_action(node, &self.action, self.own_sample, &mut self.action_tx) {
-            let _ = out.push(f);
+            self.push_tpdo(f, out);
         }
     }
 
@@ -900,13 +905,27 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         if self.sdo.device.heartbeat_ms != 0 {
             let _ = out.push(heartbeat_frame(node, self.state.canopen()));
         }
-        let _ = out.push(status_frame(
+        let f = status_frame(
             node,
             self.state.code(),
             self.fault.code(),
             self.envelope.status(),
             &mut self.status_tx,
-        ));
+        );
+        self.push_tpdo(f, out);
+    }
+
+    /// Sends a TPDO frame, remembering its E2E header for object 0x2201.
+    fn push_tpdo(&mut self, f: CanFrame, out: &mut Outbox) {
+        let node = self.cfg.node_id;
+        let id = f.standard_id();
+        if let (Some(k), [a, b, ..]) = (
+            (0..TPDOS).find(|&k| id == Some(tpdo_cob_id(node, k))),
+            embedded_can::Frame::data(&f),
+        ) {
+            self.tpdo_headers[k] = u16::from_le_bytes([*a, *b]);
+        }
+        let _ = out.push(f);
     }
 
     fn push_emcy(&mut self, out: &mut Outbox) {
@@ -942,13 +961,8 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             Some(i) => (i.layout_hash, i.format_version as u8, i.task),
             None => (0, FORMAT_VERSION as u8, 0xFF),
         };
-        let _ = out.push(policy_info_frame(
-            self.cfg.node_id,
-            hash,
-            version,
-            task,
-            &mut self.info_tx,
-        ));
+        let f = policy_info_frame(self.cfg.node_id, hash, version, task, &mut self.info_tx);
+        self.push_tpdo(f, out);
     }
 }
 
@@ -1027,5 +1041,28 @@ impl<const WIDTH: usize> crate::canopen::device::DeviceHost for Controller<'_, W
 
     fn fault_code(&self) -> u8 {
         self.fault.code()
+    }
+
+    fn node_id(&self) -> u8 {
+        self.cfg.node_id
+    }
+
+    fn observation_raw(&self, index: usize) -> i16 {
+        let lsb = quantity_of(index).map_or(1.0, Quantity::lsb);
+        self.obs.get(index).map_or(0, |&v| to_raw(v, lsb))
+    }
+
+    fn action_raw(&self, index: usize) -> i16 {
+        self.action
+            .get(index)
+            .map_or(0, |&v| to_raw(v, ACTION_QUANTITY.lsb()))
+    }
+
+    fn observation_header(&self, k: usize) -> u16 {
+        self.assembler.header(k)
+    }
+
+    fn tpdo_header(&self, k: usize) -> u16 {
+        self.tpdo_headers.get(k).copied().unwrap_or(0)
     }
 }

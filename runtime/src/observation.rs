@@ -46,6 +46,7 @@ pub struct ObservationAssembler {
     sample: Option<u8>,
     received: u32,
     values: [f32; OBS_DIM],
+    headers: [u16; OBS_FRAMES],
     /// Observations abandoned because frames of a newer sample arrived before they completed.
     pub abandoned: u32,
 }
@@ -62,6 +63,7 @@ impl ObservationAssembler {
             sample: None,
             received: 0,
             values: [0.0; OBS_DIM],
+            headers: [0; OBS_FRAMES],
             abandoned: 0,
         }
     }
@@ -93,6 +95,7 @@ impl ObservationAssembler {
         let Some((sample, raw)) = split_signal_frame(data) else {
             return FrameOutcome::Malformed;
         };
+        self.headers[k] = u16::from_le_bytes([data[0], data[1]]);
         if self.sample != Some(sample) {
             if self.received != 0 && self.received != ALL_FRAMES {
                 self.abandoned = self.abandoned.saturating_add(1);
@@ -113,6 +116,12 @@ impl ObservationAssembler {
         } else {
             FrameOutcome::Stored
         }
+    }
+
+    /// Bytes 0-1 (little-endian) of the last accepted observation frame `k` (0 before one, or
+    /// for `k` out of range).
+    pub fn header(&self, k: usize) -> u16 {
+        self.headers.get(k).copied().unwrap_or(0)
     }
 
     /// The assembled values (complete after [`FrameOutcome::Complete`]).
