@@ -171,3 +171,22 @@ def test_pdo_configuration_from_the_eds():
             (0x2201, 5), (0x2002, 1), (0x2002, 2), (0x2001, 0),
         ]
         assert [v.index for v in rpdos[14]] == [0x2101, 0x2100, 0x2100, 0x0003]
+
+
+def test_stock_canopen_heartbeat_nmt_and_emcy(eds_node):
+    """canopen's own NMT master and EMCY consumer on the node: the one-byte heartbeat gives
+    `wait_for_heartbeat` the states, and the watchdog's emergency arrives as error code 0x8250
+    (RPDO timeout) with the error register (generic + communication) in byte 2."""
+    node = eds_node
+    assert node.nmt.wait_for_heartbeat(2.0) == "PRE-OPERATIONAL"
+    node.nmt.state = "OPERATIONAL"
+    # No observations follow: the watchdog stops the node after 3 periods.
+    emcy = node.emcy.wait(0x8250, timeout=2.0)
+    assert emcy is not None and emcy.code == 0x8250, node.emcy.log
+    assert emcy.register == 0x11
+    assert emcy.data[:2] == bytes([1, 3])  # fault code 1 (observation timeout), safe-stop
+    assert node.nmt.wait_for_heartbeat(2.0) == "STOPPED"
+    node.nmt.state = "PRE-OPERATIONAL"
+    assert node.nmt.wait_for_heartbeat(2.0) == "PRE-OPERATIONAL"
+    # 0x1003 holds the same code (fault code in bits 16-23).
+    assert node.sdo[0x1003][1].raw == 0x0001_8250
