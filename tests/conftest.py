@@ -21,11 +21,35 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 DB = cantools.database.load_file(ROOT / "can" / "jaco.dbc")
 NODE = 0x10
+
+
+def rpdo_cob_id(node: int, k: int) -> int:
+    """COB-ID of a controller's RPDO k (observation frame k): the CiA 301 pre-defined set for
+    k < 4, then those of node + 32, + 64, + 96 (runtime/src/can/messages.rs, `rpdo_cob_id`)."""
+    return 0x200 + 0x100 * (k % 4) + node + 32 * (k // 4)
+
+
+def tpdo_cob_id(node: int, k: int) -> int:
+    """COB-ID of a controller's TPDO k (actions 0..2, policy info 3, status 4)."""
+    return 0x180 + 0x100 * (k % 4) + node + 32 * (k // 4)
+
+
+def action_ids(node: int = NODE) -> list:
+    return [tpdo_cob_id(node, k) for k in range(3)]
+
+
 HEARTBEAT_ID = 0x700 + NODE
 EMCY_ID = 0x80 + NODE
+ACTION_IDS = action_ids(NODE)
+POLICY_INFO_ID = tpdo_cob_id(NODE, 3)
+STATUS_ID = tpdo_cob_id(NODE, 4)
 PERIOD = 0.05
 OBS_MESSAGES = [DB.get_message_by_name(f"OBS_{k:02d}") for k in range(15)]
 ACTION_MESSAGES = [DB.get_message_by_name(f"ACTION_{k}") for k in range(3)]
+STATUS_MESSAGE = DB.get_message_by_name("STATUS")
+# The DBC is that of the default node; every node's frames have its layouts.
+assert [m.frame_id for m in OBS_MESSAGES] == [rpdo_cob_id(NODE, k) for k in range(15)]
+assert [m.frame_id for m in ACTION_MESSAGES] == ACTION_IDS and STATUS_MESSAGE.frame_id == STATUS_ID
 HEAD = {"crc", "alive_counter", "sample_counter"}
 OBS_SIGNALS = [s.name for m in OBS_MESSAGES for s in m.signals if s.name not in HEAD]
 NMT_START, NMT_STOP, NMT_PREOP = 0x01, 0x02, 0x80
@@ -50,6 +74,12 @@ def protect(can_id: int, data: bytearray) -> bytearray:
     """Fills byte 0 with the E2E CRC over the data id (LE) and bytes 1..n."""
     data[0] = crc8_sae_j1850(can_id.to_bytes(2, "little") + bytes(data[1:]))
     return data
+
+
+def emcy_crc_ok(can_id: int, data: bytes) -> bool:
+    """The emergency's E2E protection (at its end: CRC in byte 7 over the data id and bytes 0..6,
+    alive counter in the low nibble of byte 6)."""
+    return len(data) == 8 and data[7] == crc8_sae_j1850(can_id.to_bytes(2, "little") + bytes(data[:7]))
 
 
 @functools.cache
@@ -221,9 +251,11 @@ def observation(step: int = 0) -> list:
 
 
 class PlantTx:
-    """Encodes observations into the 15 protected frames with cantools (one alive counter per id)."""
+    """Encodes observations into the 15 protected frames (the RPDOs of controller `node`) with
+    cantools (one alive counter per id)."""
 
-    def __init__(self):
+    def __init__(self, node=NODE):
+        self.node = node
         self.counters = [0] * 15
         self.sample = 0
 
@@ -238,7 +270,8 @@ class PlantTx:
             signals = {s.name: named.get(s.name, 0.0) for s in msg.signals if s.name not in HEAD}
             signals.update(crc=0, alive_counter=counter, sample_counter=sample)
             data = bytearray(msg.encode(signals, strict=strict))
-            out.append(can.Message(arbitration_id=msg.frame_id, data=protect(msg.frame_id, data), is_extended_id=False))
+            can_id = rpdo_cob_id(self.node, k)
+            out.append(can.Message(arbitration_id=can_id, data=protect(can_id, data), is_extended_id=False))
             if counters is None:
                 self.counters[k] = 0 if counter >= 14 else counter + 1
         return out
@@ -271,22 +304,52 @@ def collect(bus, seconds, stop=None):
     return out
 
 
-def wait_heartbeat(bus, state, seconds=2.0):
-    got = collect(
-        bus, seconds, lambda m: m.arbitration_id == HEARTBEAT_ID and m.data[0] == state
-    )
-    assert got and got[-1][1].arbitration_id == HEARTBEAT_ID and got[-1][1].data[0] == state, (
+def wait_heartbeat(bus, state, seconds=2.0, node=NODE):
+    hb = 0x700 + node
+    got = collect(bus, seconds, lambda m: m.arbitration_id == hb and m.data[0] == state)
+    assert got and got[-1][1].arbitration_id == hb and got[-1][1].data[0] == state, (
         f"no heartbeat with state {state:#x}: {[hex(m.arbitration_id) for _, m in got][-10:]}"
     )
-    return got
+    assert len(got[-1][1].data) == 1, "CiA 301 heartbeat: one byte"
+    # The status TPDO goes out right after the heartbeat: read it too, so that what a test
+    # collects next starts after both.
+    status = tpdo_cob_id(node, 4)
+    return got + collect(bus, 0.1, lambda m: m.arbitration_id == status)
 
 
-def decode_action(msgs):
-    """{sample: {joint: value}} from complete action frame triples."""
+def heartbeats(got, node=NODE):
+    """(bus timestamp, heartbeat) pairs from (time, msg) pairs: the CiA 301 heartbeat's one NMT
+    state byte (`nmt_state`) with the status TPDO the controller sends right after it (`state`,
+    `fault_code`, the envelope bits, its E2E `alive_counter`)."""
+    hb_id, status_id = 0x700 + node, tpdo_cob_id(node, 4)
+    msgs = [m for _, m in got]
+    out = []
+    for i, m in enumerate(msgs):
+        if m.arbitration_id != hb_id:
+            continue
+        assert len(m.data) == 1, m
+        d = {"nmt_state": m.data[0]}
+        status = next((n for n in msgs[i + 1:] if n.arbitration_id == status_id), None)
+        if status is not None:
+            d.update(STATUS_MESSAGE.decode(status.data, decode_choices=False))
+        out.append((m.timestamp, d))
+    return out
+
+
+def decode_status(msgs, node=NODE):
+    """The decoded status TPDOs (state, fault_code, envelope bits) of `node` among `msgs`."""
+    sid = tpdo_cob_id(node, 4)
+    return [STATUS_MESSAGE.decode(m.data, decode_choices=False) for m in msgs if m.arbitration_id == sid]
+
+
+def decode_action(msgs, node=NODE):
+    """{sample: {joint: value}} from complete action frame triples of controller `node`."""
+    ids = action_ids(node)
     by_sample = {}
     for m in msgs:
-        if 0x280 <= m.arbitration_id <= 0x282:
-            d = DB.decode_message(m.arbitration_id, m.data, decode_choices=False)
+        if m.arbitration_id in ids:
+            msg = ACTION_MESSAGES[ids.index(m.arbitration_id)]
+            d = msg.decode(m.data, decode_choices=False)
             by_sample.setdefault(d["sample_counter"], {}).update(
                 {k: v for k, v in d.items() if k not in HEAD}
             )

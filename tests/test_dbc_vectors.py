@@ -17,6 +17,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DB = cantools.database.load_file(ROOT / "can" / "jaco.dbc")
 VECTORS = json.loads((ROOT / "tests" / "can" / "vectors.json").read_text())
 UNPROTECTED = {"NMT", "HEARTBEAT"}
+TAIL_PROTECTED = {"EMCY"}  # CiA 301 bytes 0-2 first: the CRC in byte 7, the counter in byte 6
 
 
 def test_reference_crc_check_value():
@@ -46,7 +47,19 @@ def test_cantools_decodes_the_rust_bytes(vector):
 
 
 @pytest.mark.parametrize(
-    "vector", [v for v in VECTORS if v["message"] not in UNPROTECTED], ids=lambda v: v["message"]
+    "vector", [v for v in VECTORS if v["message"] in TAIL_PROTECTED], ids=lambda v: v["message"]
+)
+def test_tail_e2e_crc_matches_the_reference(vector):
+    data = bytes.fromhex(vector["data"])
+    data_id = vector["id"].to_bytes(2, "little")
+    assert data[7] == crc8_sae_j1850(data_id + data[:7])
+    assert data[6] & 0x0F <= 14
+
+
+@pytest.mark.parametrize(
+    "vector",
+    [v for v in VECTORS if v["message"] not in UNPROTECTED | TAIL_PROTECTED],
+    ids=lambda v: v["message"],
 )
 def test_e2e_crc_matches_the_reference(vector):
     data = bytes.fromhex(vector["data"])

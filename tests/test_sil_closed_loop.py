@@ -5,7 +5,7 @@ import math
 import subprocess
 import time
 
-from conftest import LIMITS, PERIOD, PlantTx, collect, decode_action, observation
+from conftest import ACTION_IDS, LIMITS, PERIOD, PlantTx, collect, decode_action, observation
 JOINTS = list(LIMITS)
 
 
@@ -27,7 +27,7 @@ def test_closed_loop_episode_from_python(operational):
         t0 = time.monotonic()
         tx.send(bus, obs)
         sample = tx.sample
-        got = collect(bus, 0.045, lambda m: m.arbitration_id == 0x282)
+        got = collect(bus, 0.045, lambda m: m.arbitration_id == ACTION_IDS[2])
         actions = decode_action([m for _, m in got])
         if sample in actions:
             answered += 1

@@ -12,11 +12,12 @@ import pytest
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from conftest import NODE, PREOP, wait_heartbeat
+from conftest import NODE, PREOP, rpdo_cob_id, tpdo_cob_id, wait_heartbeat
 
 EDS = Path(__file__).resolve().parent.parent / "can" / "jaco.eds"
 NO_DATA = 0x0800_0024
-SIZES = {0x05: 1, 0x06: 2, 0x07: 4}  # UNSIGNED8/16/32
+SIZES = {0x03: 2, 0x05: 1, 0x06: 2, 0x07: 4}  # INTEGER16, UNSIGNED8/16/32
+PDO_OBJECTS = [*range(0x1400, 0x140F), *range(0x1600, 0x160F), *range(0x1800, 0x1805), *range(0x1A00, 0x1A05)]
 READABLE = ("ro", "rw", "const", "rwr", "rww")
 
 
@@ -52,9 +53,10 @@ def import_quietly():
 
 
 def variables(od):
-    """Every ODVariable of the dictionary, in index and sub-index order."""
+    """Every ODVariable of the dictionary, in index and sub-index order (not the dummy data type
+    entries below 0x1000 that [DummyUsage] declares: no objects of the device)."""
     out = []
-    for index in sorted(od.indices):
+    for index in sorted(i for i in od.indices if i >= 0x1000):
         obj = od[index]
         if isinstance(obj, ODVariable):
             out.append(obj)
@@ -70,15 +72,16 @@ def test_the_eds_imports_without_warnings():
     assert not records, [r.getMessage() for r in records]
     assert od.device_information.product_number == 0x44584A43
     # The objects docs/runtime.md lists, and nothing else.
-    assert sorted(od.indices) == [
-        0x1000, 0x1001, 0x1003, 0x1017, 0x1018, 0x1029, 0x1F50, 0x1F51, 0x1F56, 0x1F57, 0x2000,
-        0x2001,
-    ]
+    assert sorted(od.indices) == sorted([
+        0x0003,  # the INTEGER16 dummy that pads the last observation RPDO
+        0x1000, 0x1001, 0x1003, 0x1017, 0x1018, 0x1029, *PDO_OBJECTS, 0x1F50, 0x1F51, 0x1F56,
+        0x1F57, 0x2000, 0x2001, 0x2002, 0x2100, 0x2101, 0x2200, 0x2201,
+    ])
     assert od[0x1F50][1].data_type == 0x0F and od[0x1F50][1].access_type == "wo"
     assert od[0x1F51][1].access_type == "rw"
     assert len(od[0x1003].subindices) == 9 and len(od[0x2000].subindices) == 6
     for var in variables(od):
-        assert var.data_type in (0x05, 0x06, 0x07, 0x0F), var.name
+        assert var.data_type in (0x03, 0x05, 0x06, 0x07, 0x0F), var.name
     # The identity in the device info agrees with 0x1018's defaults.
     assert od[0x1018][2].default == od.device_information.product_number
     assert od[0x1018][3].default == od.device_information.revision_number
@@ -118,7 +121,7 @@ def test_every_readable_object_of_the_eds_answers_an_upload(eds_node):
             node.object_dictionary[var.index], ODVariable
         ) else node.sdo[var.index][var.subindex]
         value = sdo_var.raw
-        assert value == int.from_bytes(raw, "little")
+        assert value == int.from_bytes(raw, "little", signed=var.data_type == 0x03)
         if var.default is not None:
             assert value == var.default, f"{var.index:#06x}:{var.subindex} {var.name}: {value} != default {var.default}"
         seen += 1
@@ -146,3 +149,44 @@ def test_write_only_program_data_is_refused_for_upload(eds_node):
     with pytest.raises(SdoAbortedError) as e:
         eds_node.sdo.upload(0x1005, 0)  # not in the EDS
     assert e.value.code == 0x0602_0000
+
+
+def test_pdo_configuration_from_the_eds():
+    """canopen reads the PDO communication and mapping objects from the EDS (no SDO): the
+    node-derived COB-IDs (RPDO k = observation frame k; TPDO 0-2 actions, 3 policy info, 4
+    status) and mappings as long as the frames."""
+    for node_id in (1, NODE, 31):
+        network = canopen.Network()
+        node = network.add_node(node_id, str(EDS))
+        node.rpdo.read(from_od=True)
+        node.tpdo.read(from_od=True)
+        rpdos = [node.rpdo[k + 1] for k in range(15)]
+        tpdos = [node.tpdo[k + 1] for k in range(5)]
+        assert [p.cob_id for p in rpdos] == [rpdo_cob_id(node_id, k) for k in range(15)]
+        assert [p.cob_id for p in tpdos] == [tpdo_cob_id(node_id, k) for k in range(5)]
+        assert all(p.enabled and p.trans_type == 0xFE for p in rpdos + tpdos)
+        assert [p.length for p in rpdos] == [64] * 15
+        assert [p.length for p in tpdos] == [64, 64, 64, 64, 40]
+        assert [(v.index, v.subindex) for v in tpdos[4]] == [
+            (0x2201, 5), (0x2002, 1), (0x2002, 2), (0x2001, 0),
+        ]
+        assert [v.index for v in rpdos[14]] == [0x2101, 0x2100, 0x2100, 0x0003]
+
+
+def test_stock_canopen_heartbeat_nmt_and_emcy(eds_node):
+    """canopen's own NMT master and EMCY consumer on the node: the one-byte heartbeat gives
+    `wait_for_heartbeat` the states, and the watchdog's emergency arrives as error code 0x8250
+    (RPDO timeout) with the error register (generic + communication) in byte 2."""
+    node = eds_node
+    assert node.nmt.wait_for_heartbeat(2.0) == "PRE-OPERATIONAL"
+    node.nmt.state = "OPERATIONAL"
+    # No observations follow: the watchdog stops the node after 3 periods.
+    emcy = node.emcy.wait(0x8250, timeout=2.0)
+    assert emcy is not None and emcy.code == 0x8250, node.emcy.log
+    assert emcy.register == 0x11
+    assert emcy.data[:2] == bytes([1, 3])  # fault code 1 (observation timeout), safe-stop
+    assert node.nmt.wait_for_heartbeat(2.0) == "STOPPED"
+    node.nmt.state = "PRE-OPERATIONAL"
+    assert node.nmt.wait_for_heartbeat(2.0) == "PRE-OPERATIONAL"
+    # 0x1003 holds the same code (fault code in bits 16-23).
+    assert node.sdo[0x1003][1].raw == 0x0001_8250

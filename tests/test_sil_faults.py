@@ -5,8 +5,9 @@ import can
 import pytest
 
 from conftest import (
-    DB, EMCY_ID, HEARTBEAT_ID, NMT_START, OPERATIONAL, PERIOD, PREOP, STOPPED, PlantTx, collect,
-    crc8_sae_j1850, decode_action, emcy_codes, nmt, observation, protect, started, wait_heartbeat,
+    ACTION_IDS, DB, EMCY_ID, NODE, rpdo_cob_id, HEARTBEAT_ID, NMT_START, OPERATIONAL, PERIOD, PREOP, STOPPED, PlantTx,
+    collect, decode_action, emcy_codes, emcy_crc_ok, heartbeats, nmt, observation, protect, started,
+    wait_heartbeat,
 )
 
 
@@ -37,7 +38,8 @@ def assert_zero_actions(msgs, at_least):
 
 
 def heartbeat_of(got):
-    return [DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False) for _, m in got if m.arbitration_id == HEARTBEAT_ID]
+    """Each heartbeat's NMT state with the status TPDO beside it (state, fault code)."""
+    return [d for _, d in heartbeats(got)]
 
 
 @pytest.fixture
@@ -62,7 +64,7 @@ def test_observation_timeout_safe_stops_with_emcy_8250(operational):
     assert 3 * PERIOD <= emcy[0][0] - last_obs <= 4 * PERIOD + 0.05, emcy[0][0] - last_obs
     hb = heartbeat_of(after)
     assert hb and hb[0]["nmt_state"] == STOPPED and hb[0]["fault_code"] == 1
-    zero = [m for t, m in after if t > emcy[0][0] and 0x280 <= m.arbitration_id <= 0x282]
+    zero = [m for t, m in after if t > emcy[0][0] and m.arbitration_id in ACTION_IDS]
     assert len(zero) >= 3 * 5  # a zero-velocity action every cycle
     assert_zero_actions(zero, at_least=4)
     assert s.diag()["fault"] == "ObservationTimeout"
@@ -91,7 +93,7 @@ def test_injected_corruption_on_the_bus_is_detected(lossy):
     s, bus = lossy
     tx = PlantTx()
     run_plant(bus, tx, 2)
-    assert s.control("fault corrupt 205 1") == "< ok >"
+    assert s.control(f"fault corrupt {rpdo_cob_id(NODE, 5):x} 1") == "< ok >"  # observation frame 5
     got, sent = run_plant(bus, tx, 4)
     corrupted = sent[0][1]
     assert corrupted not in answered(got)
@@ -156,14 +158,17 @@ def test_non_finite_value_faults_with_ff02(operational):
 
 
 def emcy_payload(m):
-    """The EMCY frame's bytes checked against its layout (E2E CRC and counter, error code LE,
-    fault code, state, two zero bytes); returns (error code, fault code, state)."""
+    """The EMCY frame's bytes checked against its CiA 301 layout (error code LE, error register,
+    then fault code, state, a zero byte, the E2E alive counter and CRC); returns (error code,
+    fault code, state)."""
     data = bytes(m.data)
     assert m.arbitration_id == EMCY_ID == 0x090 and not m.is_extended_id and len(data) == 8
-    assert data[0] == crc8_sae_j1850(EMCY_ID.to_bytes(2, "little") + data[1:]), data.hex()
-    assert data[1] & 0x0F <= 14 and data[6:] == b"\0\0", data.hex()
+    assert emcy_crc_ok(EMCY_ID, data), data.hex()
+    assert data[6] <= 14 and data[5] == 0, data.hex()
     d = DB.decode_message(EMCY_ID, data, decode_choices=False)
-    assert d["error_code"] == int.from_bytes(data[2:4], "little")
+    assert d["error_code"] == int.from_bytes(data[:2], "little")
+    # The error register (0x1001): 0 after an error reset, set while an error is latched.
+    assert (d["error_register"] == 0) == (d["error_code"] == 0), d
     return d["error_code"], d["fault_code"], d["state"]
 
 
@@ -192,7 +197,7 @@ def test_bus_off_safe_action_then_emcy_8140_and_preoperational(operational):
     # Then the documented state: pre-operational (CiA 301 0x1029 default), announced at once by a
     # heartbeat with fault code 6; every later heartbeat the same.
     after_emcy = [m for t, m in back if t >= emcy[0][0]]
-    hb = [DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False) for m in after_emcy if m.arbitration_id == HEARTBEAT_ID]
+    hb = heartbeat_of([(None, m) for m in after_emcy])
     assert hb and all((h["nmt_state"], h["state"], h["fault_code"]) == (PREOP, 1, 6) for h in hb), hb
     assert after_emcy[1].arbitration_id == HEARTBEAT_ID  # sent together with the emergency
     # Zero velocity every cycle once back (about 6 cycles in 300 ms), although the plant keeps
@@ -232,11 +237,12 @@ def test_injected_delay_reorders_in_bus_time(operational):
     s, bus = operational
     tx = PlantTx()
     run_plant(bus, tx, 2)
-    assert s.control("fault delay 280 20000 1") == "< ok >"
+    # Action frame 0 (TPDO1, 0x190) held back 20 ms: the other two arrive first.
+    assert s.control(f"fault delay {ACTION_IDS[0]:x} 20000 1") == "< ok >"
     tx.send(bus, observation(5))
-    got = collect(bus, 0.1, lambda m: m.arbitration_id == 0x280)
-    ids = [m.arbitration_id for _, m in got if 0x280 <= m.arbitration_id <= 0x282]
-    assert ids[:3] == [0x281, 0x282, 0x280]
+    got = collect(bus, 0.1, lambda m: m.arbitration_id == ACTION_IDS[0])
+    ids = [m.arbitration_id for _, m in got if m.arbitration_id in ACTION_IDS]
+    assert ids[:3] == [ACTION_IDS[1], ACTION_IDS[2], ACTION_IDS[0]]
     t = {m.arbitration_id: (at, m.timestamp) for at, m in got}
-    assert t[0x280][1] - t[0x282][1] >= 0.019  # bus timestamps
+    assert t[ACTION_IDS[0]][1] - t[ACTION_IDS[2]][1] >= 0.019  # bus timestamps
     assert int(s.stats()["fault_delayed"]) == 1

@@ -14,11 +14,12 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from conftest import (
+    ACTION_IDS, POLICY_INFO_ID, heartbeats,
     DB, LIMITS, NMT_PREOP, NMT_START, NMT_STOP, NODE, OPERATIONAL, PREOP, STOPPED, PlantTx, collect,
     decode_action, nmt, observation, wait_heartbeat,
 )
 
-POLICY_INFO = 0x290
+POLICY_INFO = POLICY_INFO_ID
 EMCY = 0x080 + NODE
 SDO_RESPONSE = 0x580 + NODE
 PROGRAM_DATA, PROGRAM_CONTROL, PROGRAM_ID, FLASH_STATUS = 0x1F50, 0x1F51, 0x1F56, 0x1F57
@@ -95,7 +96,7 @@ def runs_policy(bus, tx=None):
     wait_heartbeat(bus, OPERATIONAL, 1.0)
     tx = PlantTx() if tx is None else tx
     tx.send(bus, observation(1))
-    got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x282)
+    got = collect(bus, 0.2, lambda m: m.arbitration_id == ACTION_IDS[2])
     nmt(bus, NMT_STOP)
     wait_heartbeat(bus, STOPPED, 1.0)
     return tx.sample in decode_action([m for _, m in got])
@@ -171,7 +172,7 @@ def test_an_int8_policy_is_flashed_and_run_like_an_f32_one(sim, policies):
         nmt(bus, NMT_START)
         wait_heartbeat(bus, OPERATIONAL, 1.0)
         tx.send(bus, observation(1))
-        got = collect(bus, 0.2, lambda m: m.arbitration_id == 0x282)
+        got = collect(bus, 0.2, lambda m: m.arbitration_id == ACTION_IDS[2])
         nmt(bus, NMT_STOP)
         wait_heartbeat(bus, STOPPED, 1.0)
         nmt(bus, NMT_PREOP)  # back to pre-operational for the next activation
@@ -297,13 +298,14 @@ def test_a_policy_faulting_at_its_first_evaluation_is_rolled_back_with_emcy_0xff
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
     tx.send(bus, observation(1))
-    got = [m for _, m in collect(bus, 0.3) if m.arbitration_id in (EMCY, 0x700 + NODE)]
+    got = collect(bus, 0.3)
+    hb = heartbeats(got)
+    got = [m for _, m in got if m.arbitration_id in (EMCY, 0x700 + NODE)]
     emcy = [m for m in got if m.arbitration_id == EMCY]
     assert len(emcy) == 1, got
     d = DB.decode_message(EMCY, emcy[0].data, decode_choices=False)
     assert (d["error_code"], d["fault_code"]) == (0xFF07, 7), d
-    hb = [m for m in got if m.arbitration_id == 0x700 + NODE]
-    assert hb and hb[0].data[0] == STOPPED and hb[0].data[3] == 7, hb
+    assert hb and hb[0][1]["nmt_state"] == STOPPED and hb[0][1]["fault_code"] == 7, hb
     assert program_id(node) == zlib.crc32(old)  # the previous policy is active again
     aborted(NO_DATA, control, node, ROLL_BACK)  # the faulty one is not kept for a roll-back
     # The emergency is in the pre-defined error field (0x1003): fault code 7, error code 0xFF07.

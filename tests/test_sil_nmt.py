@@ -1,14 +1,9 @@
 """NMT state changes, heartbeat period and states, policy refusal: the controller node seen from
 python-can over the virtual bus (real-time mode, 20 Hz)."""
 from conftest import (
-    DB, HEARTBEAT_ID, NMT_PREOP, NMT_START, NMT_STOP, OPERATIONAL, PREOP, STOPPED, collect,
-    decode_action, emcy_codes, nmt, wait_heartbeat,
+    ACTION_IDS, NMT_PREOP, NMT_START, NMT_STOP, OPERATIONAL, PREOP, STATUS_ID, STATUS_MESSAGE,
+    STOPPED, collect, decode_action, emcy_codes, heartbeats, nmt, wait_heartbeat,
 )
-
-
-def heartbeats(msgs):
-    """(bus timestamp, decoded heartbeat) pairs."""
-    return [(m.timestamp, DB.decode_message(HEARTBEAT_ID, m.data, decode_choices=False)) for t, m in msgs if m.arbitration_id == HEARTBEAT_ID]
 
 
 def test_preoperational_heartbeat_period_and_safe_actions(sim):
@@ -26,12 +21,13 @@ def test_preoperational_heartbeat_period_and_safe_actions(sim):
     # Heartbeat every 10 cycles = 500 ms (bus timestamps, as a bus analyser sees them).
     gaps = [b[0] - a[0] for a, b in zip(hb, hb[1:])]
     assert len(gaps) == len(hb) - 1 and all(0.45 < g < 0.55 for g in gaps), gaps
-    counters = [d["counter"] for _, d in hb]
-    assert all((b - a) % 256 == 1 for a, b in zip(counters, counters[1:]))
+    # The status TPDO beside each heartbeat: its E2E alive counter advances by one (0..14).
+    counters = [d["alive_counter"] for _, d in hb]
+    assert all((b - a) % 15 == 1 for a, b in zip(counters, counters[1:])), counters
     # Pre-operational: a zero-velocity action every cycle (about 26 in 1.3 s). At least 18
     # consecutive sample nibbles hold at least 17 complete triples: all 16 nibbles, 9 joints each.
     actions = decode_action([m for _, m in msgs])
-    assert sum(m.arbitration_id == 0x280 for _, m in msgs) >= 18
+    assert sum(m.arbitration_id == ACTION_IDS[0] for _, m in msgs) >= 18
     assert len(actions) == 16 and all(len(a) == 9 for a in actions.values()), actions
     assert all(v == 0.0 for a in actions.values() for v in a.values())
 
@@ -39,8 +35,9 @@ def test_preoperational_heartbeat_period_and_safe_actions(sim):
 def test_nmt_start_stop_preop_cycle(operational):
     _, bus = operational
     nmt(bus, NMT_STOP)
-    got = wait_heartbeat(bus, STOPPED, 1.0)
-    assert DB.decode_message(HEARTBEAT_ID, got[-1][1].data, decode_choices=False)["state"] == 3  # safe-stop
+    wait_heartbeat(bus, STOPPED, 1.0)
+    status = collect(bus, 0.1, lambda m: m.arbitration_id == STATUS_ID)
+    assert STATUS_MESSAGE.decode(status[-1][1].data, decode_choices=False)["state"] == 3  # safe-stop
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
     nmt(bus, NMT_PREOP)

@@ -35,7 +35,7 @@ use dex_policy::{FormatError, PolicyView};
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::E2eSender;
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, NmtCommand, OBS_FRAMES, encode_observation, nmt_frame,
+    ACTION_FRAMES, NmtCommand, OBS_FRAMES, action_frame_index, encode_observation, nmt_frame,
 };
 use dex_runtime::envelope::{Envelope, EnvelopeConfig};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM};
@@ -203,8 +203,7 @@ impl ActionFrames<'_> {
     fn iter(&self) -> impl Iterator<Item = (u16, &CanFrame)> {
         self.0.iter().filter_map(|f| {
             let id = f.standard_id()?;
-            let k = id.checked_sub(ACTION_BASE_ID)?;
-            (usize::from(k) < ACTION_FRAMES).then_some((id, f))
+            action_frame_index(ControllerConfig::default().node_id, id).map(|_| (id, f))
         })
     }
 
@@ -322,7 +321,7 @@ fn replay_controller(
     let mut senders = [E2eSender::default(); OBS_FRAMES];
     for step in 0..steps {
         let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
-        let frames = encode_observation(&obs, step as u8, &mut senders);
+        let frames = encode_observation(cfg.node_id, &obs, step as u8, &mut senders);
         clock.advance(u64::from(cfg.period_us));
         let (sent, n) = p.measure(|| {
             ctrl.poll(&clock);
@@ -534,14 +533,14 @@ pub mod slots {
         // One observation before the start: the controller's end-to-end counters follow this
         // fresh sender (not evaluated outside operational).
         if let Some(obs) = observation(&TRACE.0, 0) {
-            for f in &encode_observation(&obs, 15, &mut senders) {
+            for f in &encode_observation(cfg.node_id, &obs, 15, &mut senders) {
                 ctrl.on_frame_slots(f, &clock, slots);
             }
         }
         ctrl.on_frame_slots(&nmt_frame(NmtCommand::Start, cfg.node_id), &clock, slots);
         for step in 0..steps {
             let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
-            let frames = encode_observation(&obs, step as u8, &mut senders);
+            let frames = encode_observation(cfg.node_id, &obs, step as u8, &mut senders);
             clock.advance(u64::from(cfg.period_us));
             let ((), n) = p.measure(|| {
                 ctrl.poll(&clock);

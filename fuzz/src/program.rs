@@ -473,7 +473,7 @@ impl<'r> Rig<'r> {
     fn observe(&mut self) {
         let obs = observation_trace(1, u64::from(self.sample))[0];
         self.sample = self.sample.wrapping_add(1);
-        let frames = encode_observation(&obs, self.sample & 0x0F, &mut self.senders);
+        let frames = encode_observation(NODE, &obs, self.sample & 0x0F, &mut self.senders);
         for f in &frames {
             self.deliver(f);
         }

@@ -8,7 +8,8 @@
 //! lower bound of the compute time on a Cortex-M4F, whose loads and multiplies can take more).
 
 use dex_hil_sim::wire::{Offer, bits_ns, schedule, unstuffed_bits, worst_case_bits};
-use dex_runtime::can::messages::{ACTION_BASE_ID, ACTION_FRAMES, OBS_BASE_ID, OBS_FRAMES};
+use dex_runtime::ControllerConfig;
+use dex_runtime::can::messages::{ACTION_FRAMES, OBS_FRAMES, rpdo_cob_id, tpdo_cob_id};
 
 fn main() {
     let budget = std::fs::read_to_string(concat!(
@@ -49,7 +50,7 @@ fn main() {
             let obs: Vec<Offer> = (0..OBS_FRAMES)
                 .map(|k| Offer {
                     ready_ns: 0,
-                    id: OBS_BASE_ID + k as u16,
+                    id: rpdo_cob_id(ControllerConfig::default().node_id, k),
                     bits,
                 })
                 .collect();
@@ -62,7 +63,7 @@ fn main() {
             let act: Vec<Offer> = (0..ACTION_FRAMES)
                 .map(|k| Offer {
                     ready_ns: ready,
-                    id: ACTION_BASE_ID + k as u16,
+                    id: tpdo_cob_id(ControllerConfig::default().node_id, k),
                     bits,
                 })
                 .collect();

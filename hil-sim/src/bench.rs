@@ -153,7 +153,7 @@ pub fn run_bench(cfg: &BenchConfig) -> Result<BenchReport, BenchError> {
 
 fn drive(bus: &Bus, cfg: &BenchConfig) -> Result<BenchReport, BenchError> {
     let mut client = BusClient::connect(bus.addr(), "vcan0")?;
-    let mut actions = ActionAssembler::default();
+    let mut actions = ActionAssembler::new(0x10);
     // Start: wait for pre-operational, NMT start, wait for operational.
     let mut state = None;
     let deadline = Instant::now() + Duration::from_secs(3);
@@ -193,7 +193,7 @@ fn drive(bus: &Bus, cfg: &BenchConfig) -> Result<BenchReport, BenchError> {
             }
             lateness.push(Instant::now().saturating_duration_since(due).as_secs_f64() * 1e6);
         }
-        for f in encode_observation(&trace[i % trace.len()], sample, &mut tx) {
+        for f in encode_observation(0x10, &trace[i % trace.len()], sample, &mut tx) {
             client.queue(&f);
         }
         let t0 = Instant::now();

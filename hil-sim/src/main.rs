@@ -136,6 +136,12 @@ struct BusArgs {
     /// Run the controller node without a policy.
     #[arg(long)]
     controller: bool,
+    /// Run a controller node with this node id (1..=31), each with its own policy slots; repeat
+    /// it for several on one bus (`--node 1 --node 2`). Implies `--controller`; without it, one
+    /// node with the default id 0x10. `--policy` is installed in every node; `diag` reports the
+    /// first.
+    #[arg(long = "node", value_parser = parse_node_id)]
+    nodes: Vec<u8>,
     /// Exit after this many seconds.
     #[arg(long)]
     seconds: Option<f64>,
@@ -238,29 +244,40 @@ fn bus_command(args: BusArgs) -> Result<()> {
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));
-    let node = if args.controller || args.policy.is_some() {
+    let mut nodes = Vec::new();
+    if args.controller || args.policy.is_some() || !args.nodes.is_empty() {
         let bytes = match &args.policy {
             Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
             None => None,
         };
-        Some(spawn_controller_node(
-            bus.addr(),
-            bytes,
-            dex_runtime::ControllerConfig {
-                watchdog_cycles: args.watchdog_cycles,
-                ..dex_runtime::ControllerConfig::default()
-            },
-            if args.lockstep {
-                TimeMode::Lockstep
-            } else {
-                TimeMode::RealTime
-            },
-            Arc::clone(&stop),
-            Some(bus.status_slot()),
-        )?)
-    } else {
-        None
-    };
+        let ids = if args.nodes.is_empty() {
+            vec![dex_runtime::ControllerConfig::default().node_id]
+        } else {
+            args.nodes.clone()
+        };
+        for (k, node_id) in ids.into_iter().enumerate() {
+            if nodes.iter().any(|(id, _)| *id == node_id) {
+                bail!("node id {node_id} given twice");
+            }
+            let handle = spawn_controller_node(
+                bus.addr(),
+                bytes.clone(),
+                dex_runtime::ControllerConfig {
+                    node_id,
+                    watchdog_cycles: args.watchdog_cycles,
+                    ..dex_runtime::ControllerConfig::default()
+                },
+                if args.lockstep {
+                    TimeMode::Lockstep
+                } else {
+                    TimeMode::RealTime
+                },
+                Arc::clone(&stop),
+                (k == 0).then(|| bus.status_slot()),
+            )?;
+            nodes.push((node_id, handle));
+        }
+    }
     println!("hil-sim bus listening on {}", bus.addr());
     std::io::stdout().flush()?;
     let start = Instant::now();
@@ -269,22 +286,32 @@ fn bus_command(args: BusArgs) -> Result<()> {
             .seconds
             .is_none_or(|s| start.elapsed().as_secs_f64() < s)
     {
-        if node.as_ref().is_some_and(|n| n.is_finished()) {
+        if nodes.iter().any(|(_, n)| n.is_finished()) {
             break;
         }
         std::thread::sleep(Duration::from_millis(20));
     }
     stop.store(true, Ordering::SeqCst);
-    if let Some(n) = node {
+    for (id, n) in nodes {
         match n.join() {
-            Ok(Ok(report)) => eprintln!("controller node: {:?}", report.diagnostics),
-            Ok(Err(e)) => eprintln!("controller node failed: {e}"),
-            Err(_) => eprintln!("controller node panicked"),
+            Ok(Ok(report)) => eprintln!("controller node {id}: {:?}", report.diagnostics),
+            Ok(Err(e)) => eprintln!("controller node {id} failed: {e}"),
+            Err(_) => eprintln!("controller node {id} panicked"),
         }
     }
     eprintln!("bus: {:?}", bus.stats());
     bus.shutdown();
     Ok(())
+}
+
+/// A controller node id from the command line (decimal or 0x-hex), 1..=31.
+fn parse_node_id(s: &str) -> Result<u8, String> {
+    let value = match s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
+        Some(hex) => u8::from_str_radix(hex, 16),
+        None => s.parse(),
+    }
+    .map_err(|e| format!("node id '{s}': {e}"))?;
+    dex_runtime::can::messages::check_node_id(value).map_err(|e| e.to_string())
 }
 
 fn flash_command(

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::{E2eReceiver, E2eSender, E2eStatus};
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES,
+    ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES, action_frame_index,
     decode_action_frame, encode_observation, nmt_frame,
 };
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
@@ -243,9 +243,10 @@ pub struct EpisodesReport {
     pub actions: Vec<Vec<[f32; ACT_DIM]>>,
 }
 
-/// Assembles complete actions from E2E-checked action frames.
+/// Assembles complete actions from E2E-checked action frames (the TPDOs of one controller).
 #[derive(Debug, Clone)]
 pub struct ActionAssembler {
+    node: u8,
     rx: [E2eReceiver; ACTION_FRAMES],
     sample: u8,
     mask: u8,
@@ -256,9 +257,11 @@ pub struct ActionAssembler {
     pub rejected: u64,
 }
 
-impl Default for ActionAssembler {
-    fn default() -> Self {
+impl ActionAssembler {
+    /// An assembler for the action frames of controller `node`.
+    pub fn new(node: u8) -> Self {
         ActionAssembler {
+            node,
             rx: [E2eReceiver::new(3); ACTION_FRAMES],
             sample: 0xFF,
             mask: 0,
@@ -267,13 +270,11 @@ impl Default for ActionAssembler {
             rejected: 0,
         }
     }
-}
 
-impl ActionAssembler {
     /// Feeds one frame; returns the sample nibble when it completed an action.
     pub fn push(&mut self, frame: &CanFrame) -> Option<u8> {
         let id = frame.standard_id()?;
-        let k = usize::from(id.checked_sub(ACTION_BASE_ID)?);
+        let k = action_frame_index(self.node, id)?;
         let rx = self.rx.get_mut(k)?;
         if rx.check(id, frame.data()) != E2eStatus::Ok {
             self.rejected += 1;
@@ -377,7 +378,7 @@ impl<'b> PlantNode<'b> {
             timing,
             node_id,
             tx: [E2eSender::default(); OBS_FRAMES],
-            actions: ActionAssembler::default(),
+            actions: ActionAssembler::new(node_id),
             sample: 0,
             sim_us: 0,
             controller_state: None,
@@ -417,7 +418,7 @@ impl<'b> PlantNode<'b> {
             self.controller_state = f.data().first().copied();
             None
         } else if id == EMCY_BASE_ID + u16::from(self.node_id) {
-            if let Some(c) = f.data().get(2..4) {
+            if let Some(c) = f.data().get(0..2) {
                 self.emcy.push(u16::from_le_bytes([c[0], c[1]]));
             }
             None
@@ -517,7 +518,7 @@ impl<'b> PlantNode<'b> {
             self.sim_us += u64::from(CONTROL_PERIOD_US);
             self.sample = (self.sample + 1) & 0x0F;
             self.tick()?;
-            for f in encode_observation(&obs, self.sample, &mut self.tx) {
+            for f in encode_observation(self.node_id, &obs, self.sample, &mut self.tx) {
                 self.client.queue(&f);
             }
             self.client.flush()?;

@@ -40,7 +40,7 @@ fn direct(policy: &[u8]) -> Vec<[f32; ACT_DIM]> {
     let mut t = 0;
     let mut sample = 0u8;
     let mut out = Vec::new();
-    let mut asm = ActionAssembler::default();
+    let mut asm = ActionAssembler::new(0x10);
     for seed in SEEDS {
         let mut obs = plant.reset(seed).unwrap();
         for _ in 0..STEPS {
@@ -49,7 +49,7 @@ fn direct(policy: &[u8]) -> Vec<[f32; ACT_DIM]> {
             clock.set(t);
             c.poll(&clock);
             let mut action = None;
-            for f in encode_observation(&obs, sample, &mut tx) {
+            for f in encode_observation(0x10, &obs, sample, &mut tx) {
                 for a in c.on_frame(&f, &clock) {
                     if asm.push(&a) == Some(sample) {
                         action = asm.newest.map(|(v, _)| v);

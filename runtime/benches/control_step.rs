@@ -18,7 +18,7 @@ use dex_policy::PolicyView;
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, NmtCommand, OBS_FRAMES, encode_observation, nmt_frame,
+    ACTION_FRAMES, NmtCommand, OBS_FRAMES, action_frame_index, encode_observation, nmt_frame,
 };
 use dex_runtime::envelope::EnvelopeConfig;
 use dex_runtime::interface::ACT_DIM;
@@ -77,9 +77,12 @@ fn control_step(c: &mut Criterion) {
 
 /// Action frames among the frames a step sent.
 fn action_frames(out: &[CanFrame]) -> usize {
-    let ids = ACTION_BASE_ID..ACTION_BASE_ID + ACTION_FRAMES as u16;
+    let node = ControllerConfig::default().node_id;
     out.iter()
-        .filter(|f| f.standard_id().is_some_and(|id| ids.contains(&id)))
+        .filter(|f| {
+            f.standard_id()
+                .is_some_and(|id| action_frame_index(node, id).is_some())
+        })
         .count()
 }
 
@@ -100,7 +103,14 @@ fn control_step_with(c: &mut Criterion, name: &str, envelope: EnvelopeConfig) {
     let mut tx = [E2eSender::default(); OBS_FRAMES];
     // Frames are prepared outside the timed loop: the plant makes them, not the controller.
     let cycles: Vec<_> = (0..240u32)
-        .map(|n| encode_observation(&trace[n as usize % 16], n as u8, &mut tx))
+        .map(|n| {
+            encode_observation(
+                ControllerConfig::default().node_id,
+                &trace[n as usize % 16],
+                n as u8,
+                &mut tx,
+            )
+        })
         .collect();
     let mut n = 0usize;
     let mut others = 0usize;

@@ -10,7 +10,7 @@ use std::time::Instant;
 use dex_policy::PolicyView;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, NmtCommand, OBS_FRAMES, encode_observation, nmt_frame,
+    ACTION_FRAMES, NmtCommand, OBS_FRAMES, action_frame_index, encode_observation, nmt_frame,
 };
 use dex_runtime::envelope::EnvelopeConfig;
 use dex_runtime::interface::ACT_DIM;
@@ -73,16 +73,24 @@ fn control_steps(
     let trace = observation_trace(16, 3);
     let mut tx = [E2eSender::default(); OBS_FRAMES];
     let mut samples = Vec::with_capacity(n);
-    let actions = ACTION_BASE_ID..ACTION_BASE_ID + ACTION_FRAMES as u16;
+    let node = ControllerConfig::default().node_id;
     for i in 0..n {
-        let frames = encode_observation(&trace[i % 16], i as u8, &mut tx);
+        let frames = encode_observation(
+            ControllerConfig::default().node_id,
+            &trace[i % 16],
+            i as u8,
+            &mut tx,
+        );
         let t = Instant::now();
         let mut sent = 0;
         for f in &frames {
             let out = controller.on_frame(f, &clock);
             sent += out
                 .iter()
-                .filter(|f| f.standard_id().is_some_and(|id| actions.contains(&id)))
+                .filter(|f| {
+                    f.standard_id()
+                        .is_some_and(|id| action_frame_index(node, id).is_some())
+                })
                 .count();
         }
         samples.push(t.elapsed().as_nanos() as u64);

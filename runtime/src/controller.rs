@@ -20,8 +20,9 @@ use heapless::Vec;
 use crate::can::e2e::E2eSender;
 use crate::can::frame::CanFrame;
 use crate::can::messages::{
-    ACTION_FRAMES, NMT_ID, NmtCommand, OBS_FRAMES, emcy_frame, encode_action, heartbeat_frame,
-    policy_info_frame,
+    ACTION_FRAMES, ACTION_QUANTITY, NMT_ID, NmtCommand, NodeIdError, OBS_FRAMES, TPDOS,
+    check_node_id, emcy_frame, encode_action, heartbeat_frame, policy_info_frame, status_frame,
+    to_raw, tpdo_cob_id,
 };
 use crate::canopen::device::{DeviceObjects, DeviceState, Identity};
 use crate::canopen::program::{ProgramObjects, ProgramState};
@@ -31,6 +32,7 @@ use crate::envelope::{Envelope, EnvelopeConfig, EnvelopeStats};
 use crate::error::{EvalError, LoadError};
 use crate::features::{INPUT_MAX, policy_input};
 use crate::interface::{ACT_DIM, CONTROL_PERIOD_US, OBS_DIM};
+use crate::interface::{Quantity, quantity_of};
 use crate::mlp::{Mlp, Network};
 use crate::observation::{FrameOutcome, ObservationAssembler, ObservationFault, check_observation};
 use crate::slots::{PolicySlots, SlotError};
@@ -40,9 +42,10 @@ pub const SDO_REQUEST_BASE: u16 = 0x600;
 /// SDO response identifier base (`+ node`): this controller to the client.
 pub const SDO_RESPONSE_BASE: u16 = 0x580;
 
-/// Frames to send after one call; 8 slots, and no call produces more than 7 (a poll's 6 and an
-/// SDO timeout's abort).
-pub type Outbox = Vec<CanFrame, 8>;
+/// Frames to send after one call; 10 slots, and no call produces more than 8 (a poll's 7: a
+/// state change's heartbeat and status, an emergency, three safe-action frames and the policy
+/// information; and an SDO timeout's abort).
+pub type Outbox = Vec<CanFrame, 10>;
 
 /// Controller states, in CANopen's spirit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -60,7 +63,7 @@ pub enum State {
 }
 
 impl State {
-    /// Code in the heartbeat's third byte.
+    /// Code in the status TPDO and object 0x2002:1.
     pub const fn code(self) -> u8 {
         match self {
             State::Boot => 0,
@@ -71,7 +74,7 @@ impl State {
         }
     }
 
-    /// CANopen NMT state byte (first heartbeat byte).
+    /// CANopen NMT state byte (the heartbeat's one byte).
     pub const fn canopen(self) -> u8 {
         match self {
             State::Boot => 0x00,
@@ -82,7 +85,8 @@ impl State {
     }
 }
 
-/// Why the controller left operational (reported in heartbeat and emergency frames).
+/// Why the controller left operational (reported in the status TPDO, object 0x2002:2 and
+/// emergency frames).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FaultCode {
     /// No fault.
@@ -111,7 +115,7 @@ pub enum FaultCode {
 }
 
 impl FaultCode {
-    /// Code in heartbeat and emergency frames.
+    /// Code in the status TPDO, object 0x2002:2 and emergency frames (byte 3).
     pub const fn code(self) -> u8 {
         match self {
             FaultCode::None => 0,
@@ -148,13 +152,16 @@ impl FaultCode {
 /// Controller settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ControllerConfig {
-    /// CANopen node id (1..=127).
+    /// CANopen node id (1..=31, [`ControllerConfig::check`]): every node-specific identifier
+    /// derives from it ([`crate::can::messages`]).
     pub node_id: u8,
     /// Control period in microseconds.
     pub period_us: u32,
     /// Safe-stop when the newest complete observation is older than this many periods.
     pub watchdog_cycles: u32,
-    /// Heartbeat every this many periods (and on every state change).
+    /// The producer heartbeat time (0x1017) after boot, in periods (0: no heartbeat but the
+    /// boot-up message); an SDO write to 0x1017 changes it, in ms. The heartbeat also goes out
+    /// on every state change while it is on.
     pub heartbeat_cycles: u32,
     /// Largest accepted alive-counter jump on observation frames (1: no frame may be lost).
     pub e2e_max_delta: u8,
@@ -171,6 +178,18 @@ impl Default for ControllerConfig {
             heartbeat_cycles: 10,
             e2e_max_delta: 1,
             envelope: EnvelopeConfig::jaco(),
+        }
+    }
+}
+
+impl ControllerConfig {
+    /// Whether the configuration can run on a shared bus: the node id must lie in 1..=31
+    /// ([`check_node_id`]). Check it when the configuration is made; a controller built from a
+    /// configuration that fails it sends frames on identifiers of other nodes.
+    pub const fn check(&self) -> Result<(), NodeIdError> {
+        match check_node_id(self.node_id) {
+            Ok(_) => Ok(()),
+            Err(e) => Err(e),
         }
     }
 }
@@ -202,7 +221,7 @@ pub struct Diagnostics {
     pub bus_off_events: u64,
 }
 
-/// Identity of the loaded policy, reported in the policy-info frame.
+/// Identity of the loaded policy, reported in the policy-info TPDO.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PolicyInfo {
     /// Layout hash from the file header.
@@ -261,8 +280,12 @@ pub struct Controller<'p, const WIDTH: usize> {
     action_tx: [E2eSender; ACTION_FRAMES],
     emcy_tx: E2eSender,
     info_tx: E2eSender,
+    status_tx: E2eSender,
     own_sample: u8,
-    heartbeat_counter: u8,
+    /// A status (heartbeat and status TPDO) went out since the flag was last cleared.
+    status_sent: bool,
+    /// Bytes 0-1 of the last frame sent on each TPDO (object 0x2201).
+    tpdo_headers: [u16; TPDOS],
     next_tick_us: Option<u64>,
     cycles_since_heartbeat: u32,
     announce: bool,
@@ -283,7 +306,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             fault: FaultCode::None,
             policy: None,
             info: None,
-            assembler: ObservationAssembler::new(cfg.e2e_max_delta),
+            assembler: ObservationAssembler::new(cfg.node_id, cfg.e2e_max_delta),
             obs: [0.0; OBS_DIM],
             last_obs_us: 0,
             frames_this_cycle: false,
@@ -292,8 +315,10 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             action_tx: [E2eSender::default(); ACTION_FRAMES],
             emcy_tx: E2eSender::default(),
             info_tx: E2eSender::default(),
+            status_tx: E2eSender::default(),
             own_sample: 0,
-            heartbeat_counter: 0,
+            status_sent: false,
+            tpdo_headers: [0; TPDOS],
             next_tick_us: None,
             cycles_since_heartbeat: 0,
             announce: false,
@@ -342,7 +367,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.envelope.stats()
     }
 
-    /// The safety envelope's status bits (`envelope::status`, heartbeat byte 4).
+    /// The safety envelope's status bits (`envelope::status`, object 0x2001, status TPDO byte 4).
     pub fn envelope_status(&self) -> u8 {
         self.envelope.status()
     }
@@ -546,7 +571,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         };
         if id == NMT_ID {
             self.on_nmt(frame.data(), clock, &mut out);
-        } else if let Some(k) = ObservationAssembler::frame_index(id) {
+        } else if let Some(k) = self.assembler.frame_index(id) {
             self.on_observation_frame(k, frame.data(), clock, &mut out, slots);
         } else {
             self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
@@ -595,7 +620,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         }
         self.bus_off = false;
         self.push_emcy_code(FaultCode::BusOff, &mut out);
-        self.push_heartbeat(&mut out);
+        self.push_status(&mut out);
         self.send_safe_action(&mut out);
         out
     }
@@ -627,7 +652,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.frames_this_cycle = false;
         self.evaluations_this_cycle = 0;
 
-        let heartbeats = self.heartbeat_counter;
+        self.status_sent = false;
         if core::mem::take(&mut self.stop_requested) && self.state == State::Operational {
             self.enter(State::PreOperational, &mut out);
         }
@@ -643,12 +668,13 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
                 self.send_safe_action(&mut out)
             }
         }
-        self.cycles_since_heartbeat += 1;
-        // A cycle whose state change already sent a heartbeat sends no second one (with
-        // `heartbeat_cycles` 0 or 1 it would, and a watchdog cycle would need 7 frames).
-        let sent = self.heartbeat_counter != heartbeats;
-        if !sent && self.cycles_since_heartbeat >= self.cfg.heartbeat_cycles {
-            self.push_heartbeat(&mut out);
+        self.cycles_since_heartbeat = self.cycles_since_heartbeat.saturating_add(1);
+        // The producer heartbeat time (0x1017, ms; 0: off) as the SDO server last set it. A
+        // cycle whose state change already sent a heartbeat sends no second one.
+        let heartbeat_us = u64::from(self.sdo.device.heartbeat_ms) * 1000;
+        let since_us = u64::from(self.cycles_since_heartbeat) * period;
+        if heartbeat_us != 0 && !self.status_sent && since_us >= heartbeat_us {
+            self.push_status(&mut out);
         }
         if self.announce {
             self.announce = false;
@@ -707,6 +733,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
                     self.action_tx = [E2eSender::default(); ACTION_FRAMES];
                     self.emcy_tx = E2eSender::default();
                     self.info_tx = E2eSender::default();
+                    self.status_tx = E2eSender::default();
                 }
                 self.assembler.reset();
                 self.fault = FaultCode::None;
@@ -793,8 +820,9 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             Ok(()) => {
                 let limited = self.envelope.apply(&self.obs, &mut action);
                 self.action = action;
-                for f in encode_action(&self.action, sample, &mut self.action_tx) {
-                    let _ = out.push(f);
+                let node = self.cfg.node_id;
+                for f in encode_action(node, &self.action, sample, &mut self.action_tx) {
+                    self.push_tpdo(f, out);
                 }
                 // After the action frames, so a plant waiting for them reads them first.
                 if limited.sustained_started {
@@ -831,10 +859,11 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         }
     }
 
-    /// CANopen boot-up message (heartbeat with state 0x00), then pre-operational.
+    /// CANopen boot-up message (heartbeat with state 0x00, sent whatever the heartbeat time),
+    /// then pre-operational.
     fn boot_up(&mut self, out: &mut Outbox) {
         self.state = State::Boot;
-        self.push_heartbeat(out);
+        let _ = out.push(heartbeat_frame(self.cfg.node_id, State::Boot.canopen()));
         self.enter(State::PreOperational, out);
     }
 
@@ -851,7 +880,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
                 self.envelope.end_run();
             }
             self.state = state;
-            self.push_heartbeat(out);
+            self.push_status(out);
             if matches!(state, State::PreOperational | State::Operational) {
                 self.announce = true;
             }
@@ -861,22 +890,41 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     fn send_safe_action(&mut self, out: &mut Outbox) {
         self.action = [0.0; ACT_DIM];
         self.own_sample = self.own_sample.wrapping_add(1) & 0x0F;
-        for f in encode_action(&self.action, self.own_sample, &mut self.action_tx) {
-            let _ = out.push(f);
+        let node = self.cfg.node_id;
+        for f in encode_action(node, &self.action, self.own_sample, &mut self.action_tx) {
+            self.push_tpdo(f, out);
         }
     }
 
-    fn push_heartbeat(&mut self, out: &mut Outbox) {
+    /// The heartbeat (one NMT state byte; not while the heartbeat time is 0) and the status
+    /// TPDO (controller state, fault code, envelope status; always).
+    fn push_status(&mut self, out: &mut Outbox) {
         self.cycles_since_heartbeat = 0;
-        let f = heartbeat_frame(
-            self.cfg.node_id,
-            self.state.canopen(),
-            self.heartbeat_counter,
+        self.status_sent = true;
+        let node = self.cfg.node_id;
+        if self.sdo.device.heartbeat_ms != 0 {
+            let _ = out.push(heartbeat_frame(node, self.state.canopen()));
+        }
+        let f = status_frame(
+            node,
             self.state.code(),
             self.fault.code(),
             self.envelope.status(),
+            &mut self.status_tx,
         );
-        self.heartbeat_counter = self.heartbeat_counter.wrapping_add(1);
+        self.push_tpdo(f, out);
+    }
+
+    /// Sends a TPDO frame, remembering its E2E header for object 0x2201.
+    fn push_tpdo(&mut self, f: CanFrame, out: &mut Outbox) {
+        let node = self.cfg.node_id;
+        let id = f.standard_id();
+        if let (Some(k), [a, b, ..]) = (
+            (0..TPDOS).find(|&k| id == Some(tpdo_cob_id(node, k))),
+            embedded_can::Frame::data(&f),
+        ) {
+            self.tpdo_headers[k] = u16::from_le_bytes([*a, *b]);
+        }
         let _ = out.push(f);
     }
 
@@ -889,15 +937,18 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         self.push_emcy_with(fault.emcy_code(), fault, out);
     }
 
-    /// Emergency with `error_code`, `fault`'s fault code and the current state; an error (not
-    /// the error reset 0x0000) is recorded in the pre-defined error field (0x1003).
+    /// Emergency with `error_code`, the error register (0x1001) as it stands, `fault`'s fault
+    /// code and the current state; an error (not the error reset 0x0000) is recorded in the
+    /// pre-defined error field (0x1003) with the same code.
     fn push_emcy_with(&mut self, error_code: u16, fault: FaultCode, out: &mut Outbox) {
         if error_code != 0 {
             self.sdo.device.record_emergency(error_code, fault.code());
         }
+        let register = crate::canopen::device::DeviceHost::error_register(self);
         let f = emcy_frame(
             self.cfg.node_id,
             error_code,
+            register,
             fault.code(),
             self.state.code(),
             &mut self.emcy_tx,
@@ -910,7 +961,8 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             Some(i) => (i.layout_hash, i.format_version as u8, i.task),
             None => (0, FORMAT_VERSION as u8, 0xFF),
         };
-        let _ = out.push(policy_info_frame(hash, version, task, &mut self.info_tx));
+        let f = policy_info_frame(self.cfg.node_id, hash, version, task, &mut self.info_tx);
+        self.push_tpdo(f, out);
     }
 }
 
@@ -981,5 +1033,36 @@ impl<const WIDTH: usize> crate::canopen::device::DeviceHost for Controller<'_, W
 
     fn envelope_status(&self) -> u8 {
         self.envelope.status()
+    }
+
+    fn controller_state(&self) -> u8 {
+        self.state.code()
+    }
+
+    fn fault_code(&self) -> u8 {
+        self.fault.code()
+    }
+
+    fn node_id(&self) -> u8 {
+        self.cfg.node_id
+    }
+
+    fn observation_raw(&self, index: usize) -> i16 {
+        let lsb = quantity_of(index).map_or(1.0, Quantity::lsb);
+        self.obs.get(index).map_or(0, |&v| to_raw(v, lsb))
+    }
+
+    fn action_raw(&self, index: usize) -> i16 {
+        self.action
+            .get(index)
+            .map_or(0, |&v| to_raw(v, ACTION_QUANTITY.lsb()))
+    }
+
+    fn observation_header(&self, k: usize) -> u16 {
+        self.assembler.header(k)
+    }
+
+    fn tpdo_header(&self, k: usize) -> u16 {
+        self.tpdo_headers.get(k).copied().unwrap_or(0)
     }
 }

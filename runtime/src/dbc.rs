@@ -1,12 +1,15 @@
 //! Generates the cell's DBC description (`can/jaco.dbc`) from [`crate::interface`] and
-//! [`crate::can::messages`], so the file can never drift from the codec (`std` only).
+//! [`crate::can::messages`], so the file can never drift from the codec (`std` only). A DBC
+//! names fixed identifiers: the committed file is that of the default node 0x10; another node's
+//! frames have the same layouts on the identifiers [`crate::can::messages::rpdo_cob_id`] and
+//! [`crate::can::messages::tpdo_cob_id`] give (or generate its own with [`generate`]).
 
 use std::fmt::Write;
 use std::string::String;
 
 use crate::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, ACTION_QUANTITY, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NMT_ID,
-    OBS_BASE_ID, OBS_FRAMES, POLICY_INFO_ID, SIGNALS_PER_FRAME,
+    ACTION_FRAMES, ACTION_QUANTITY, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NMT_ID, OBS_FRAMES,
+    POLICY_INFO_TPDO, SIGNALS_PER_FRAME, STATUS_LEN, STATUS_TPDO, rpdo_cob_id, tpdo_cob_id,
 };
 use crate::controller::FaultCode;
 use crate::interface::{ACTION_JOINTS, OBSERVATION_FIELDS, Quantity};
@@ -25,7 +28,7 @@ const FAULTS: [FaultCode; 10] = [
     FaultCode::EnvelopeConfig,
 ];
 
-/// Heartbeat byte 4, bit by bit from bit 0: `envelope::status`.
+/// Status TPDO byte 4 (object 0x2001), bit by bit from bit 0: `envelope::status`.
 pub const ENVELOPE_BITS: [&str; 6] = [
     "envelope_enabled",
     "envelope_sustained",
@@ -143,21 +146,53 @@ pub fn generate(node: u8) -> String {
     out.push_str(" SG_ command : 0|8@1+ (1,0) [0|255] \"\" CONTROLLER\n");
     out.push_str(" SG_ node_id : 8|8@1+ (1,0) [0|127] \"\" CONTROLLER\n\n");
 
-    let _ = writeln!(
-        out,
-        "BO_ {} EMCY: 8 CONTROLLER",
-        EMCY_BASE_ID + u16::from(node)
-    );
+    let emcy = EMCY_BASE_ID + u16::from(node);
+    // CiA 301: error code, error register, then 5 manufacturer-specific bytes, the E2E
+    // protection at the end (E2eLayout::Tail).
+    let _ = writeln!(out, "BO_ {emcy} EMCY: 8 CONTROLLER");
+    out.push_str(" SG_ error_code : 0|16@1+ (1,0) [0|65535] \"\" MASTER\n");
+    out.push_str(" SG_ error_register : 16|8@1+ (1,0) [0|255] \"\" MASTER\n");
+    out.push_str(" SG_ fault_code : 24|8@1+ (1,0) [0|255] \"\" MASTER\n");
+    out.push_str(" SG_ state : 32|8@1+ (1,0) [0|4] \"\" MASTER\n");
+    out.push_str(" SG_ alive_counter : 48|4@1+ (1,0) [0|14] \"\" MASTER\n");
+    out.push_str(" SG_ crc : 56|8@1+ (1,0) [0|255] \"\" MASTER\n\n");
+
+    for k in 0..ACTION_FRAMES {
+        let _ = writeln!(
+            out,
+            "BO_ {} {}: 8 CONTROLLER",
+            tpdo_cob_id(node, k),
+            action_message_name(k)
+        );
+        e2e_header(&mut out, "PLANT", Some("sample_counter"));
+        for slot in 0..SIGNALS_PER_FRAME {
+            if let Some(j) = ACTION_JOINTS.get(k * SIGNALS_PER_FRAME + slot) {
+                signal(&mut out, j.name, slot, ACTION_QUANTITY, j.max, "PLANT");
+            }
+        }
+        out.push('\n');
+    }
+
+    let status = tpdo_cob_id(node, STATUS_TPDO);
+    let _ = writeln!(out, "BO_ {status} STATUS: {STATUS_LEN} CONTROLLER");
     e2e_header(&mut out, "MASTER", None);
-    out.push_str(" SG_ error_code : 16|16@1+ (1,0) [0|65535] \"\" MASTER\n");
-    out.push_str(" SG_ fault_code : 32|8@1+ (1,0) [0|255] \"\" MASTER\n");
-    out.push_str(" SG_ state : 40|8@1+ (1,0) [0|4] \"\" MASTER\n\n");
+    out.push_str(" SG_ state : 16|8@1+ (1,0) [0|4] \"\" MASTER\n");
+    out.push_str(" SG_ fault_code : 24|8@1+ (1,0) [0|255] \"\" MASTER\n");
+    // Byte 4: the safety envelope's status bits (runtime/src/envelope.rs, `status`).
+    for (bit, name) in ENVELOPE_BITS.iter().enumerate() {
+        let _ = writeln!(
+            out,
+            " SG_ {name} : {}|1@1+ (1,0) [0|1] \"\" MASTER",
+            32 + bit
+        );
+    }
+    out.push('\n');
 
     for k in 0..OBS_FRAMES {
         let _ = writeln!(
             out,
             "BO_ {} {}: 8 PLANT",
-            OBS_BASE_ID + k as u16,
+            rpdo_cob_id(node, k),
             observation_message_name(k)
         );
         e2e_header(&mut out, "CONTROLLER", Some("sample_counter"));
@@ -173,65 +208,45 @@ pub fn generate(node: u8) -> String {
         out.push('\n');
     }
 
-    for k in 0..ACTION_FRAMES {
-        let _ = writeln!(
-            out,
-            "BO_ {} {}: 8 CONTROLLER",
-            ACTION_BASE_ID + k as u16,
-            action_message_name(k)
-        );
-        e2e_header(&mut out, "PLANT", Some("sample_counter"));
-        for slot in 0..SIGNALS_PER_FRAME {
-            if let Some(j) = ACTION_JOINTS.get(k * SIGNALS_PER_FRAME + slot) {
-                signal(&mut out, j.name, slot, ACTION_QUANTITY, j.max, "PLANT");
-            }
-        }
-        out.push('\n');
-    }
-
-    let _ = writeln!(out, "BO_ {POLICY_INFO_ID} POLICY_INFO: 8 CONTROLLER");
+    let info = tpdo_cob_id(node, POLICY_INFO_TPDO);
+    let _ = writeln!(out, "BO_ {info} POLICY_INFO: 8 CONTROLLER");
     e2e_header(&mut out, "MASTER", None);
     out.push_str(" SG_ layout_hash : 16|32@1+ (1,0) [0|4294967295] \"\" MASTER\n");
     out.push_str(" SG_ format_version : 48|8@1+ (1,0) [0|255] \"\" MASTER\n");
     out.push_str(" SG_ task : 56|8@1+ (1,0) [0|255] \"\" MASTER\n\n");
 
-    let _ = writeln!(
-        out,
-        "BO_ {} HEARTBEAT: 5 CONTROLLER",
-        HEARTBEAT_BASE_ID + u16::from(node)
-    );
-    out.push_str(" SG_ nmt_state : 0|8@1+ (1,0) [0|127] \"\" MASTER\n");
-    out.push_str(" SG_ counter : 8|8@1+ (1,0) [0|255] \"\" MASTER\n");
-    out.push_str(" SG_ state : 16|8@1+ (1,0) [0|4] \"\" MASTER\n");
-    out.push_str(" SG_ fault_code : 24|8@1+ (1,0) [0|255] \"\" MASTER\n");
-    // Byte 4: the safety envelope's status bits (runtime/src/envelope.rs, `status`).
-    for (bit, name) in ENVELOPE_BITS.iter().enumerate() {
-        let _ = writeln!(
-            out,
-            " SG_ {name} : {}|1@1+ (1,0) [0|1] \"\" MASTER",
-            32 + bit
-        );
-    }
-    out.push('\n');
+    let heartbeat = HEARTBEAT_BASE_ID + u16::from(node);
+    let _ = writeln!(out, "BO_ {heartbeat} HEARTBEAT: 1 CONTROLLER");
+    out.push_str(" SG_ nmt_state : 0|8@1+ (1,0) [0|127] \"\" MASTER\n\n");
 
-    out.push_str("CM_ \"Generated by dex-runtime (runtime/src/dbc.rs); do not edit. E2E: crc = CRC-8/SAE-J1850 over data id (CAN id, LE u16) and bytes 1..n. Raw -32768 in a 16-bit signal means not available.\";\n");
     let _ = writeln!(
         out,
-        "VAL_ {} state 0 \"boot\" 1 \"pre_operational\" 2 \"operational\" 3 \"safe_stop\" 4 \"fault\" ;",
-        HEARTBEAT_BASE_ID + u16::from(node)
+        "CM_ \"Generated by dex-runtime (runtime/src/dbc.rs) for CANopen node id {node} (0x{node:02X}); \
+         do not edit. Another node id n (1..=31) has the same messages on its own identifiers: \
+         RPDO k = 0x200 + 0x100*(k % 4) + n + 32*(k / 4) (OBS_k), TPDO k = 0x180 + 0x100*(k % 4) + \
+         n + 32*(k / 4) (ACTION_0..2, POLICY_INFO 3, STATUS 4), EMCY 0x80 + n, HEARTBEAT 0x700 + n. \
+         E2E: crc = CRC-8/SAE-J1850 over data id (CAN id, LE u16) and every other byte in order; in \
+         the PDOs crc is byte 0 and alive_counter the low nibble of byte 1, in EMCY crc is byte 7 and \
+         alive_counter the low nibble of byte 6. Raw -32768 in a 16-bit signal means not available.\";"
+    );
+    let _ = writeln!(
+        out,
+        "VAL_ {status} state 0 \"boot\" 1 \"pre_operational\" 2 \"operational\" 3 \"safe_stop\" 4 \"fault\" ;"
+    );
+    let _ = writeln!(
+        out,
+        "VAL_ {emcy} state 0 \"boot\" 1 \"pre_operational\" 2 \"operational\" 3 \"safe_stop\" 4 \"fault\" ;"
+    );
+    let _ = writeln!(
+        out,
+        "VAL_ {heartbeat} nmt_state 0 \"boot_up\" 4 \"stopped\" 5 \"operational\" 127 \"pre_operational\" ;"
     );
     let _ = writeln!(
         out,
         "VAL_ {NMT_ID} command 1 \"start\" 2 \"stop\" 128 \"enter_pre_operational\" 129 \"reset_node\" 130 \"reset_communication\" ;"
     );
-    let emcy = EMCY_BASE_ID + u16::from(node);
     fault_values(&mut out, emcy, "error_code", true);
     fault_values(&mut out, emcy, "fault_code", false);
-    fault_values(
-        &mut out,
-        HEARTBEAT_BASE_ID + u16::from(node),
-        "fault_code",
-        false,
-    );
+    fault_values(&mut out, status, "fault_code", false);
     out
 }

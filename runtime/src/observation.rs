@@ -2,7 +2,8 @@
 
 use crate::can::e2e::{E2eReceiver, E2eStatus};
 use crate::can::messages::{
-    OBS_BASE_ID, OBS_FRAMES, SIGNALS_PER_FRAME, from_raw, split_signal_frame,
+    OBS_FRAMES, SIGNALS_PER_FRAME, from_raw, observation_frame_index, rpdo_cob_id,
+    split_signal_frame,
 };
 use crate::interface::{OBS_DIM, Quantity, quantity_of};
 
@@ -40,10 +41,12 @@ pub enum ObservationFault {
 /// Collects observation frames of one sample at a time.
 #[derive(Debug, Clone)]
 pub struct ObservationAssembler {
+    node: u8,
     receivers: [E2eReceiver; OBS_FRAMES],
     sample: Option<u8>,
     received: u32,
     values: [f32; OBS_DIM],
+    headers: [u16; OBS_FRAMES],
     /// Observations abandoned because frames of a newer sample arrived before they completed.
     pub abandoned: u32,
 }
@@ -51,13 +54,16 @@ pub struct ObservationAssembler {
 const ALL_FRAMES: u32 = (1u32 << OBS_FRAMES) - 1;
 
 impl ObservationAssembler {
-    /// An empty assembler whose end-to-end receivers accept counter jumps up to `max_delta`.
-    pub fn new(max_delta: u8) -> Self {
+    /// An empty assembler for the observation frames (RPDOs) of controller `node`, whose
+    /// end-to-end receivers accept counter jumps up to `max_delta`.
+    pub fn new(node: u8, max_delta: u8) -> Self {
         ObservationAssembler {
+            node,
             receivers: [E2eReceiver::new(max_delta); OBS_FRAMES],
             sample: None,
             received: 0,
             values: [0.0; OBS_DIM],
+            headers: [0; OBS_FRAMES],
             abandoned: 0,
         }
     }
@@ -69,10 +75,9 @@ impl ObservationAssembler {
         self.received = 0;
     }
 
-    /// Index of the observation frame with CAN id `id`, if it is one.
-    pub fn frame_index(id: u16) -> Option<usize> {
-        let k = usize::from(id.checked_sub(OBS_BASE_ID)?);
-        (k < OBS_FRAMES).then_some(k)
+    /// Index of the observation frame with CAN id `id`, if it is one of this node's.
+    pub fn frame_index(&self, id: u16) -> Option<usize> {
+        observation_frame_index(self.node, id)
     }
 
     /// Takes observation frame `k`. Frames of a new sample abandon an incomplete older one.
@@ -83,13 +88,14 @@ impl ObservationAssembler {
         if data.len() != 8 {
             return FrameOutcome::Malformed;
         }
-        let status = receiver.check(OBS_BASE_ID + k as u16, data);
+        let status = receiver.check(rpdo_cob_id(self.node, k), data);
         if status != E2eStatus::Ok {
             return FrameOutcome::Rejected(status);
         }
         let Some((sample, raw)) = split_signal_frame(data) else {
             return FrameOutcome::Malformed;
         };
+        self.headers[k] = u16::from_le_bytes([data[0], data[1]]);
         if self.sample != Some(sample) {
             if self.received != 0 && self.received != ALL_FRAMES {
                 self.abandoned = self.abandoned.saturating_add(1);
@@ -110,6 +116,12 @@ impl ObservationAssembler {
         } else {
             FrameOutcome::Stored
         }
+    }
+
+    /// Bytes 0-1 (little-endian) of the last accepted observation frame `k` (0 before one, or
+    /// for `k` out of range).
+    pub fn header(&self, k: usize) -> u16 {
+        self.headers.get(k).copied().unwrap_or(0)
     }
 
     /// The assembled values (complete after [`FrameOutcome::Complete`]).

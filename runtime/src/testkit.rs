@@ -144,6 +144,7 @@ pub fn can_vectors() -> Vec<CanVector> {
     use crate::can::messages::{
         ACTION_FRAMES, NmtCommand, OBS_FRAMES, SIGNALS_PER_FRAME, emcy_frame, encode_action,
         encode_observation, heartbeat_frame, nmt_frame, policy_info_frame, split_signal_frame,
+        status_frame,
     };
     use crate::dbc::{
         action_message_name, dbc_scale, observation_message_name, observation_signal_name,
@@ -152,6 +153,7 @@ pub fn can_vectors() -> Vec<CanVector> {
     use embedded_can::Frame;
     use std::string::ToString;
 
+    let node = crate::ControllerConfig::default().node_id;
     let mut out = Vec::new();
     let head = |data: &[u8], nibble: Option<&str>| {
         let mut s = std::vec![
@@ -165,7 +167,7 @@ pub fn can_vectors() -> Vec<CanVector> {
     };
     let mut obs_tx = [E2eSender::default(); OBS_FRAMES];
     for (n, obs) in observation_trace(2, 77).iter().enumerate() {
-        let frames = encode_observation(obs, 3 + n as u8 * 9, &mut obs_tx);
+        let frames = encode_observation(node, obs, 3 + n as u8 * 9, &mut obs_tx);
         for (k, f) in frames.iter().enumerate() {
             let mut signals = head(f.data(), Some("sample_counter"));
             if let Some((_, raw)) = split_signal_frame(f.data()) {
@@ -188,7 +190,10 @@ pub fn can_vectors() -> Vec<CanVector> {
     }
     let mut act_tx = [E2eSender::default(); ACTION_FRAMES];
     let action: [f32; ACT_DIM] = [0.5, -0.25, 0.628, -0.838, 0.001, 0.0, 5.0, -4.999, 2.5];
-    for (k, f) in encode_action(&action, 12, &mut act_tx).iter().enumerate() {
+    for (k, f) in encode_action(node, &action, 12, &mut act_tx)
+        .iter()
+        .enumerate()
+    {
         let mut signals = head(f.data(), Some("sample_counter"));
         if let Some((_, raw)) = split_signal_frame(f.data()) {
             for (slot, r) in raw.iter().enumerate() {
@@ -206,11 +211,16 @@ pub fn can_vectors() -> Vec<CanVector> {
     }
     let mut tx = E2eSender::default();
     for _ in 0..3 {
-        let f = emcy_frame(0x10, 0x8250, 1, 3, &mut tx);
-        let mut signals = head(f.data(), None);
-        signals.push(("error_code".to_string(), 33360.0));
-        signals.push(("fault_code".to_string(), 1.0));
-        signals.push(("state".to_string(), 3.0));
+        let f = emcy_frame(node, 0x8250, 0x11, 1, 3, &mut tx);
+        let d = f.data();
+        let signals = std::vec![
+            ("error_code".to_string(), 33360.0),
+            ("error_register".to_string(), 17.0),
+            ("fault_code".to_string(), 1.0),
+            ("state".to_string(), 3.0),
+            ("alive_counter".to_string(), f64::from(d[6] & 0x0F)),
+            ("crc".to_string(), f64::from(d[7])),
+        ];
         out.push(CanVector {
             message: "EMCY".to_string(),
             id: f.standard_id().unwrap_or(0),
@@ -218,7 +228,7 @@ pub fn can_vectors() -> Vec<CanVector> {
             signals,
         });
     }
-    let f = policy_info_frame(0xDEAD_BEEF, 1, 3, &mut E2eSender::default());
+    let f = policy_info_frame(node, 0xDEAD_BEEF, 1, 3, &mut E2eSender::default());
     let mut signals = head(f.data(), None);
     signals.push(("layout_hash".to_string(), f64::from(0xDEAD_BEEFu32)));
     signals.push(("format_version".to_string(), 1.0));
@@ -229,14 +239,18 @@ pub fn can_vectors() -> Vec<CanVector> {
         data: f.data().to_vec(),
         signals,
     });
-    let f = heartbeat_frame(0x10, 0x05, 42, 2, 0, 0x05);
+    let f = heartbeat_frame(node, 0x05);
     out.push(CanVector {
         message: "HEARTBEAT".to_string(),
         id: f.standard_id().unwrap_or(0),
         data: f.data().to_vec(),
-        signals: std::vec![
-            ("nmt_state".to_string(), 5.0),
-            ("counter".to_string(), 42.0),
+        signals: std::vec![("nmt_state".to_string(), 5.0)],
+    });
+    let mut tx = E2eSender::default();
+    for _ in 0..2 {
+        let f = status_frame(node, 2, 0, 0x05, &mut tx);
+        let mut signals = head(f.data(), None);
+        signals.extend([
             ("state".to_string(), 2.0),
             ("fault_code".to_string(), 0.0),
             // 0x05: enabled, limited by a joint position limit in the last cycle.
@@ -246,14 +260,23 @@ pub fn can_vectors() -> Vec<CanVector> {
             ("envelope_table".to_string(), 0.0),
             ("envelope_workspace".to_string(), 0.0),
             ("envelope_acceleration".to_string(), 0.0),
-        ],
-    });
-    let f = nmt_frame(NmtCommand::Start, 0x10);
+        ]);
+        out.push(CanVector {
+            message: "STATUS".to_string(),
+            id: f.standard_id().unwrap_or(0),
+            data: f.data().to_vec(),
+            signals,
+        });
+    }
+    let f = nmt_frame(NmtCommand::Start, node);
     out.push(CanVector {
         message: "NMT".to_string(),
         id: 0,
         data: f.data().to_vec(),
-        signals: std::vec![("command".to_string(), 1.0), ("node_id".to_string(), 16.0)],
+        signals: std::vec![
+            ("command".to_string(), 1.0),
+            ("node_id".to_string(), f64::from(node)),
+        ],
     });
     out
 }

@@ -2,12 +2,15 @@
 //! clock and frames built with the plant-side codec.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
+mod common;
+
 use dex_policy::PolicyView;
 use dex_runtime::can::CanFrame;
-use dex_runtime::can::e2e::{E2eReceiver, E2eSender, E2eStatus};
+use dex_runtime::can::e2e::{E2eLayout, E2eReceiver, E2eSender, E2eStatus};
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES,
-    POLICY_INFO_ID, decode_action_frame, encode_observation, nmt_frame, quantise_observation,
+    ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES, POLICY_INFO_TPDO,
+    STATUS_TPDO, action_frame_index, decode_action_frame, encode_observation, nmt_frame,
+    quantise_observation, tpdo_cob_id,
 };
 use dex_runtime::envelope::{Envelope, EnvelopeConfig};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
@@ -38,7 +41,7 @@ impl Plant {
     }
     fn frames(&mut self, obs: &[f32; OBS_DIM]) -> [CanFrame; OBS_FRAMES] {
         self.sample = self.sample.wrapping_add(1);
-        encode_observation(obs, self.sample, &mut self.tx)
+        encode_observation(NODE, obs, self.sample, &mut self.tx)
     }
 }
 
@@ -49,7 +52,7 @@ fn ids(out: &Outbox) -> Vec<u16> {
 fn emcy_code(out: &Outbox) -> Option<u16> {
     out.iter()
         .find(|f| f.standard_id() == Some(EMCY_BASE_ID + u16::from(NODE)))
-        .map(|f| u16::from_le_bytes([f.data()[2], f.data()[3]]))
+        .map(|f| u16::from_le_bytes([f.data()[0], f.data()[1]]))
 }
 
 fn actions(out: &Outbox) -> Option<[f32; ACT_DIM]> {
@@ -57,8 +60,7 @@ fn actions(out: &Outbox) -> Option<[f32; ACT_DIM]> {
     let mut seen = 0;
     for f in out.iter() {
         let id = f.standard_id().unwrap();
-        if (ACTION_BASE_ID..ACTION_BASE_ID + ACTION_FRAMES as u16).contains(&id) {
-            let k = usize::from(id - ACTION_BASE_ID);
+        if let Some(k) = action_frame_index(NODE, id) {
             let mut rx = E2eReceiver::new(15);
             assert_eq!(
                 rx.check(id, f.data()),
@@ -111,7 +113,7 @@ fn boots_to_preoperational_with_boot_up_heartbeat_and_policy_info() {
     let out = c.poll(&clock);
     let info = out
         .iter()
-        .find(|f| f.standard_id() == Some(POLICY_INFO_ID))
+        .find(|f| f.standard_id() == Some(tpdo_cob_id(NODE, POLICY_INFO_TPDO)))
         .expect("policy info after load");
     assert_eq!(
         u32::from_le_bytes(info.data()[2..6].try_into().unwrap()),
@@ -157,7 +159,7 @@ fn operational_evaluates_every_complete_observation_exactly_like_the_evaluator()
         let out = c.on_frame(&frames[OBS_FRAMES - 1], &clock);
         // The action frames, then at most the envelope's emergency (random observations put
         // the arm anywhere, so it limits).
-        assert_eq!(ids(&out)[..3], [0x280, 0x281, 0x282]);
+        assert_eq!(ids(&out)[..3], [0x190, 0x290, 0x390]);
         assert!(
             ids(&out)[3..]
                 .iter()
@@ -356,11 +358,11 @@ fn heartbeat_period_and_missed_cycles() {
 }
 
 /// Found by `fuzz/fuzz_targets/controller_structured.rs`: with a heartbeat every cycle, the cycle
-/// whose watchdog safe-stopped sent the state-change heartbeat and then the scheduled one, 7 frames
-/// where the `Outbox` promises at most 6 (its capacity is 8, past which frames are lost silently).
+/// whose watchdog safe-stopped sent the state-change heartbeat and then the scheduled one, more
+/// frames than the `Outbox` promises (past its capacity frames are lost silently).
 #[test]
 fn a_cycle_sends_one_heartbeat_even_with_a_heartbeat_every_cycle() {
-    for heartbeat_cycles in [0, 1] {
+    for heartbeat_cycles in [1] {
         let clock = MockClock::new(0);
         let file = policy();
         let view = PolicyView::decode(file.as_bytes()).unwrap();
@@ -392,7 +394,7 @@ fn a_cycle_sends_one_heartbeat_even_with_a_heartbeat_every_cycle() {
             "heartbeat_cycles {heartbeat_cycles}: {:?}",
             ids(&out)
         );
-        assert!(out.len() <= 6, "{} frames", out.len());
+        assert!(out.len() <= 7, "{} frames", out.len());
         // The next cycle has its heartbeat again.
         clock.set(9 * PERIOD);
         assert_eq!(heartbeat(&c.poll(&clock)).map(|h| h[2]), Some(3));
@@ -405,10 +407,60 @@ fn emcy(out: &Outbox) -> Vec<&CanFrame> {
         .collect()
 }
 
+/// The heartbeat's NMT state byte with the status TPDO sent beside it, as
+/// `[nmt state, 0, controller state, fault code, envelope status]`.
 fn heartbeat(out: &Outbox) -> Option<[u8; 5]> {
-    out.iter()
-        .find(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))
-        .map(|f| f.data().try_into().unwrap())
+    let hb = out
+        .iter()
+        .find(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + u16::from(NODE)))?;
+    assert_eq!(hb.data().len(), 1, "CiA 301 heartbeat: one byte");
+    let status = out
+        .iter()
+        .find(|f| f.standard_id() == Some(tpdo_cob_id(NODE, STATUS_TPDO)))
+        .expect("the status TPDO goes out with the heartbeat");
+    let s = status.data();
+    assert_eq!(
+        E2eReceiver::new(15).check(tpdo_cob_id(NODE, STATUS_TPDO), s),
+        E2eStatus::Ok
+    );
+    Some([hb.data()[0], 0, s[2], s[3], s[4]])
+}
+
+#[test]
+fn a_write_to_0x1017_sets_the_heartbeat_period_and_zero_turns_it_off() {
+    use dex_runtime::slots::PolicySlots;
+    let clock = MockClock::new(0);
+    let (mut ra, mut rb) = common::regions();
+    let mut slots = PolicySlots::mount(common::bytes(&mut ra), common::bytes(&mut rb)).unwrap();
+    let mut c = Controller::<64>::new(ControllerConfig::default());
+    c.poll_slots(&clock, &mut slots);
+    let sdo = |c: &mut Controller<'_, 64>, slots: &mut PolicySlots<'_>, d: &[u8]| {
+        let req = CanFrame::standard(0x600 + u16::from(NODE), d).unwrap();
+        let out = c.on_frame_slots(&req, &clock, slots);
+        out[0].data().to_vec()
+    };
+    // 0x1017 = 150 ms: a heartbeat every 3 periods.
+    let r = sdo(&mut c, &mut slots, &[0x2B, 0x17, 0x10, 0, 150, 0, 0, 0]);
+    assert_eq!(r[0], 0x60);
+    let r = sdo(&mut c, &mut slots, &[0x40, 0x17, 0x10, 0, 0, 0, 0, 0]);
+    assert_eq!(r[..6], [0x4B, 0x17, 0x10, 0, 150, 0]);
+    let mut beats = Vec::new();
+    for tick in 1..=9u64 {
+        clock.set(tick * PERIOD);
+        if heartbeat(&c.poll_slots(&clock, &mut slots)).is_some() {
+            beats.push(tick);
+        }
+    }
+    assert_eq!(beats, [3, 6, 9]);
+    // 0: no heartbeat, but the status TPDO still goes out on a state change.
+    sdo(&mut c, &mut slots, &[0x2B, 0x17, 0x10, 0, 0, 0, 0, 0]);
+    for tick in 10..=30u64 {
+        clock.set(tick * PERIOD);
+        assert!(heartbeat(&c.poll_slots(&clock, &mut slots)).is_none());
+    }
+    let out = c.on_frame_slots(&nmt_frame(NmtCommand::Stop, NODE), &clock, &mut slots);
+    assert!(heartbeat(&out).is_none());
+    assert!(ids(&out).contains(&tpdo_cob_id(NODE, STATUS_TPDO)));
 }
 
 #[test]
@@ -457,12 +509,17 @@ fn bus_off_in_operational_sends_the_safe_action_then_emcy_8140_and_stays_preoper
     // emergency; the heartbeat with the state; the safe action.
     let out = c.on_bus_recovered();
     assert!(!c.is_bus_off());
-    assert_eq!(ids(&out), [0x090, 0x710, 0x280, 0x281, 0x282]);
+    assert_eq!(ids(&out), [0x090, 0x710, 0x1B0, 0x190, 0x290, 0x390]);
     let e = emcy(&out)[0].data();
     assert_eq!(e.len(), 8);
-    assert_eq!(&e[2..], &[0x40, 0x81, 6, 1, 0, 0]);
+    // CiA 301: error code, error register (generic + communication), then fault code 6 and
+    // state 1, a zero, the alive counter and the CRC.
+    assert_eq!(&e[..6], &[0x40, 0x81, 0x11, 6, 1, 0]);
     let mut rx = E2eReceiver::new(1);
-    assert_eq!(rx.check(EMCY_BASE_ID + u16::from(NODE), e), E2eStatus::Ok);
+    assert_eq!(
+        rx.check_in(E2eLayout::Tail, EMCY_BASE_ID + u16::from(NODE), e),
+        E2eStatus::Ok
+    );
     assert_eq!(heartbeat(&out).unwrap()[0], 0x7F);
     assert_eq!(heartbeat(&out).unwrap()[2..4], [1, 6]);
     assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
@@ -507,7 +564,11 @@ fn bus_off_keeps_safe_stop_and_its_first_fault() {
     assert_eq!(actions(&out).unwrap(), [0.0; ACT_DIM]);
     let out = c.on_bus_recovered();
     let e = emcy(&out)[0].data();
-    assert_eq!(&e[2..6], &[0x40, 0x81, 6, 3], "0x8140, bus-off, safe-stop");
+    assert_eq!(
+        &e[..5],
+        &[0x40, 0x81, 0x11, 6, 3],
+        "0x8140, bus-off, safe-stop"
+    );
     assert_eq!(heartbeat(&out).unwrap()[0], 0x04);
     assert_eq!(
         heartbeat(&out).unwrap()[3],

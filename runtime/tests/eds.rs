@@ -51,3 +51,60 @@ fn every_object_has_a_section_and_sub_index_zero_counts_the_rest() {
         }
     }
 }
+
+/// The PDO objects describe the frames the codec makes: the COB-IDs of `rpdo_cob_id` and
+/// `tpdo_cob_id` for every node id, mappings as long as the frames, every mapped object present.
+#[test]
+fn pdo_objects_describe_the_codec_frames() {
+    use dex_runtime::can::messages::{
+        OBS_FRAMES, STATUS_LEN, STATUS_TPDO, TPDOS, rpdo_cob_id, tpdo_cob_id,
+    };
+    use dex_runtime::canopen::Value;
+    use dex_runtime::canopen::pdo::{DUMMY_INTEGER16, OBJECTS};
+    let object = |index: u16| OBJECTS.iter().find(|o| o.index == index).unwrap();
+    let all = eds::objects();
+    type CobId = fn(u8, usize) -> u16;
+    let tables: [(u16, u16, usize, CobId); 2] = [
+        (
+            0x1400,
+            0x1600,
+            OBS_FRAMES,
+            rpdo_cob_id as fn(u8, usize) -> u16,
+        ),
+        (0x1800, 0x1A00, TPDOS, tpdo_cob_id),
+    ];
+    for (comm, map, count, cob) in tables {
+        for k in 0..count {
+            let Value::NodeId(base) = object(comm + k as u16).subs[1].value else {
+                panic!("0x{:04X}:1 is node-relative", comm + k as u16);
+            };
+            for node in 1..=31u8 {
+                assert_eq!(base + u32::from(node), u32::from(cob(node, k)));
+            }
+            let m = object(map + k as u16);
+            let Value::Const(n) = m.subs[0].value else {
+                panic!()
+            };
+            assert_eq!(n as usize, m.subs.len() - 1);
+            let mut bits = 0;
+            for s in &m.subs[1..] {
+                let Value::Const(e) = s.value else { panic!() };
+                let (index, sub) = ((e >> 16) as u16, (e >> 8) as u8);
+                bits += e & 0xFF;
+                assert!(
+                    index == DUMMY_INTEGER16
+                        || all
+                            .iter()
+                            .any(|o| o.index == index && o.subs.iter().any(|x| x.sub == sub)),
+                    "0x{index:04X}:{sub} mapped but not in the dictionary"
+                );
+            }
+            let len = if comm == 0x1800 && k == STATUS_TPDO {
+                STATUS_LEN
+            } else {
+                8
+            };
+            assert_eq!(bits as usize, 8 * len, "PDO 0x{:04X}", map + k as u16);
+        }
+    }
+}

@@ -6,7 +6,8 @@ use dex_policy::PolicyView;
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{
-    EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES, encode_observation, nmt_frame,
+    EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES, STATUS_TPDO, encode_observation,
+    nmt_frame, tpdo_cob_id,
 };
 use dex_runtime::envelope::{
     Envelope, EnvelopeConfig, EnvelopeConfigError, status, write_arm_state,
@@ -166,7 +167,7 @@ fn limiting_for_more_than_n_cycles_raises_0xff10_once_and_0x0000_when_it_ends() 
     let emcy = |out: &[CanFrame]| -> Vec<(u16, u8)> {
         out.iter()
             .filter(|f| f.standard_id() == Some(EMCY_BASE_ID + 0x10))
-            .map(|f| (u16::from_le_bytes([f.data()[2], f.data()[3]]), f.data()[4]))
+            .map(|f| (u16::from_le_bytes([f.data()[0], f.data()[1]]), f.data()[3]))
             .collect()
     };
     let mut seen = Vec::new();
@@ -174,7 +175,7 @@ fn limiting_for_more_than_n_cycles_raises_0xff10_once_and_0x0000_when_it_ends() 
     for step in 0..(n + 5) {
         clock.advance(u64::from(cfg.period_us));
         c.poll(&clock);
-        for f in encode_observation(&o, step as u8, &mut tx) {
+        for f in encode_observation(0x10, &o, step as u8, &mut tx) {
             let out = c.on_frame(&f, &clock);
             for e in emcy(&out) {
                 seen.push((step, e));
@@ -186,14 +187,18 @@ fn limiting_for_more_than_n_cycles_raises_0xff10_once_and_0x0000_when_it_ends() 
     assert_eq!(seen, [(n, (0xFF10, 16))]);
     assert!(c.envelope_status() & status::SUSTAINED != 0);
     assert!(c.envelope_stats().longest > n);
-    // The heartbeat carries the status byte.
+    // The status TPDO, sent with the heartbeat, carries the status byte.
     clock.advance(u64::from(cfg.period_us) * 10);
-    let hb: Vec<_> = c
-        .poll(&clock)
+    let out = c.poll(&clock);
+    assert!(
+        out.iter()
+            .any(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + 0x10))
+    );
+    let status: Vec<_> = out
         .into_iter()
-        .filter(|f| f.standard_id() == Some(HEARTBEAT_BASE_ID + 0x10))
+        .filter(|f| f.standard_id() == Some(tpdo_cob_id(0x10, STATUS_TPDO)))
         .collect();
-    assert_eq!(hb[0].data()[4], c.envelope_status());
+    assert_eq!(status[0].data()[4], c.envelope_status());
 }
 
 #[test]

@@ -39,7 +39,7 @@ fn the_controller_feeds_a_featured_policy_its_features_exactly_as_the_evaluator(
     for (sample, obs) in observation_trace(20, 7).into_iter().enumerate() {
         clock.advance(PERIOD);
         c.poll(&clock);
-        for f in encode_observation(&obs, sample as u8 + 1, &mut tx) {
+        for f in encode_observation(0x10, &obs, sample as u8 + 1, &mut tx) {
             c.on_frame(&f, &clock);
         }
         let quantised: [f32; OBS_DIM] = core::array::from_fn(|i| quantise_observation(i, obs[i]));

@@ -153,7 +153,8 @@ fn controller_runs_int8_files_like_the_evaluator() {
     for (cycle, obs) in observation_trace(16, 4).iter().enumerate() {
         clock.set(cycle as u64 * 50_000 + 1_000);
         ctrl.poll(&clock);
-        let frames = dex_runtime::can::messages::encode_observation(obs, cycle as u8, &mut tx);
+        let frames =
+            dex_runtime::can::messages::encode_observation(0x10, obs, cycle as u8, &mut tx);
         for f in &frames {
             ctrl.on_frame(f, &clock);
         }

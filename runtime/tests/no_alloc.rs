@@ -71,7 +71,7 @@ fn control_cycles_allocate_nothing(policy: &[u8]) {
     for cycle in 0..10_000u64 {
         clock.set(cycle * 50_000 + 1_000);
         sent += controller.poll(&clock).len();
-        let frames = encode_observation(&trace[(cycle % 64) as usize], cycle as u8, &mut tx);
+        let frames = encode_observation(0x10, &trace[(cycle % 64) as usize], cycle as u8, &mut tx);
         for f in &frames {
             sent += controller.on_frame(f, &clock).len();
         }
@@ -126,7 +126,7 @@ fn flashing_activating_and_running_a_slot_allocate_nothing() {
     for cycle in 1..1_000u64 {
         clock.set(cycle * 50_000);
         controller.poll_slots(&clock, &mut slots);
-        let frames = encode_observation(&trace[(cycle % 64) as usize], cycle as u8, &mut tx);
+        let frames = encode_observation(0x10, &trace[(cycle % 64) as usize], cycle as u8, &mut tx);
         for f in &frames {
             controller.on_frame_slots(f, &clock, &mut slots);
         }

@@ -10,7 +10,7 @@ use dex_policy::PolicyView;
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, NmtCommand, OBS_FRAMES, encode_observation,
+    ACTION_FRAMES, EMCY_BASE_ID, NmtCommand, OBS_FRAMES, action_frame_index, encode_observation,
     nmt_frame,
 };
 use dex_runtime::canopen::program::{
@@ -127,7 +127,7 @@ fn run(c: &mut Ctl, slots: &mut PolicySlots<'_>, n: usize, t0: u64) -> Vec<[f32;
     // A fresh plant-side sender: one observation before the start resynchronises the
     // controller's end-to-end counters (it is not evaluated outside operational).
     let mut tx = [E2eSender::default(); OBS_FRAMES];
-    for f in encode_observation(&observation_trace(1, 9)[0], 0, &mut tx) {
+    for f in encode_observation(NODE, &observation_trace(1, 9)[0], 0, &mut tx) {
         c.on_frame_slots(&f, &clock, slots);
     }
     c.on_frame_slots(&nmt_frame(NmtCommand::Start, NODE), &clock, slots);
@@ -155,12 +155,12 @@ fn trace_actions<'p>(
         clock.set(t0 + 50_000 * (k as u64 + 1));
         c.poll(clock);
         let mut sent = 0;
-        for f in encode_observation(obs, (k + 1) as u8 & 0x0F, tx) {
+        for f in encode_observation(NODE, obs, (k + 1) as u8 & 0x0F, tx) {
             sent += deliver(c, &f)
                 .iter()
                 .filter(|a| {
                     let id = a.standard_id().unwrap();
-                    (ACTION_BASE_ID..ACTION_BASE_ID + ACTION_FRAMES as u16).contains(&id)
+                    action_frame_index(NODE, id).is_some()
                 })
                 .count();
         }
@@ -440,7 +440,7 @@ fn a_policy_whose_first_evaluation_faults_is_rolled_back_with_emcy_0xff07() {
     let mut tx = [E2eSender::default(); OBS_FRAMES];
     let obs = observation_trace(1, 5)[0];
     let mut out = Vec::new();
-    for f in encode_observation(&obs, 9, &mut tx) {
+    for f in encode_observation(NODE, &obs, 9, &mut tx) {
         out.extend(c.on_frame_slots(&f, &clock, &mut slots));
     }
     let emcy: Vec<&CanFrame> = out
@@ -448,7 +448,7 @@ fn a_policy_whose_first_evaluation_faults_is_rolled_back_with_emcy_0xff07() {
         .filter(|f| f.standard_id() == Some(EMCY_BASE_ID + u16::from(NODE)))
         .collect();
     assert_eq!(emcy.len(), 1);
-    assert_eq!(emcy[0].data()[2..5], [0x07, 0xFF, 7]);
+    assert_eq!(emcy[0].data()[..5], [0x07, 0xFF, 0x81, 7, 3]);
     assert_eq!(c.state(), State::SafeStop);
     assert_eq!(c.fault(), FaultCode::PolicyRolledBack);
     assert_eq!(
@@ -486,7 +486,7 @@ fn a_fault_after_the_first_evaluation_is_the_usual_fault() {
     c.poll(&clock);
     c.on_frame_slots(&nmt_frame(NmtCommand::Start, NODE), &clock, &mut slots);
     let mut tx = [E2eSender::default(); OBS_FRAMES];
-    for f in encode_observation(&observation_trace(1, 5)[0], 1, &mut tx) {
+    for f in encode_observation(NODE, &observation_trace(1, 5)[0], 1, &mut tx) {
         c.on_frame_slots(&f, &clock, &mut slots);
     }
     assert_eq!(c.state(), State::Fault);

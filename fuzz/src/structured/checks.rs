@@ -23,18 +23,21 @@
 //!    NMT reset node/communication: any -> Boot; observation frame: Operational -> SafeStop/Fault;
 //!    bus-off: Operational -> PreOperational; recovery and policy loads change no state. `Fault` is
 //!    left by NMT reset only; never `Operational` while bus-off, nor without a policy.
-//! 6. Frames sent are well-formed: only the controller's identifiers; E2E-protected ones (action,
-//!    emergency, policy info) have a correct CRC and an alive counter that advances by one per
-//!    identifier (restarting at 0 after NMT reset communication); the three action frames go
-//!    together with one sample nibble; a heartbeat's CANopen byte matches its state byte; at most 6
-//!    frames per call (the `Outbox` holds 8, and frames past it would be lost silently).
+//! 6. Frames sent are well-formed: only the controller's identifiers (its TPDOs, emergency and
+//!    heartbeat, all derived from its node id); E2E-protected ones (action, policy info and status
+//!    TPDOs with the CRC in byte 0, the emergency with it in byte 7) have a correct CRC and an
+//!    alive counter that advances by one per identifier (restarting at 0 after NMT reset
+//!    communication); the three action frames go together with one sample nibble; a heartbeat is
+//!    one byte (CiA 301); the emergency's error register is 0 exactly when no error is latched;
+//!    at most 7 frames per call (the `Outbox` holds 10, and frames past it would be lost
+//!    silently).
 //! 7. Policy loads: refused while operational (`LoadError::Operational`), and a refused file leaves
 //!    the active policy (its identity and its actions) in place; a transfer whose bytes differ from
 
-use dex_runtime::can::e2e::{crc8, next_counter};
+use dex_runtime::can::e2e::{E2eLayout, crc8, crc8_in, next_counter};
 use dex_runtime::can::messages::{
-    ACTION_BASE_ID, ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, POLICY_INFO_ID,
-    RAW_NOT_AVAILABLE, SIGNALS_PER_FRAME,
+    ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, POLICY_INFO_TPDO,
+    RAW_NOT_AVAILABLE, SIGNALS_PER_FRAME, STATUS_LEN, STATUS_TPDO, tpdo_cob_id,
 };
 use dex_runtime::interface::ACT_DIM;
 use dex_runtime::{Clock, Outbox, State};
@@ -60,7 +63,7 @@ pub(crate) enum Event {
 impl<'p> Run<'p> {
     /// Parses an outbox, checking invariants 3 and 6 on the way.
     fn parse(&mut self, out: &Outbox) -> Vec<Out> {
-        assert!(out.len() <= 6, "{} frames in one outbox", out.len());
+        assert!(out.len() <= 7, "{} frames in one outbox", out.len());
         let node = self.model.cfg.node_id;
         let mut parsed = Vec::new();
         let mut i = 0;
@@ -71,26 +74,36 @@ impl<'p> Run<'p> {
                 .expect("the controller sends standard frames");
             let data = f.data();
             let sealed = |id: u16, data: &[u8], next: &mut u8| {
+                let len = if id == tpdo_cob_id(node, STATUS_TPDO) {
+                    STATUS_LEN
+                } else {
+                    8
+                };
                 assert_eq!(
                     data.len(),
-                    8,
+                    len,
                     "protected frame {id:#x} of {} bytes",
                     data.len()
                 );
-                assert_eq!(crc8(id, data), data[0], "wrong CRC on sent frame {id:#x}");
-                let counter = data[1] & 0x0F;
+                let (crc, counter) = if id == EMCY_BASE_ID + u16::from(node) {
+                    (crc8_in(E2eLayout::Tail, id, data), data[6] & 0x0F)
+                } else {
+                    (crc8(id, data), data[1] & 0x0F)
+                };
+                let at = if id == EMCY_BASE_ID + u16::from(node) { 7 } else { 0 };
+                assert_eq!(crc, data[at], "wrong CRC on sent frame {id:#x}");
                 assert_eq!(counter, *next, "alive counter of {id:#x}");
                 *next = next_counter(*next);
             };
-            if id == ACTION_BASE_ID {
+            if id == tpdo_cob_id(node, 0) {
                 assert!(i + ACTION_FRAMES <= out.len(), "action frames split");
                 let mut raw = [0i16; ACT_DIM];
                 let sample = data[1] >> 4;
                 for k in 0..ACTION_FRAMES {
                     let g = &out[i + k];
-                    assert_eq!(g.standard_id(), Some(ACTION_BASE_ID + k as u16));
+                    assert_eq!(g.standard_id(), Some(tpdo_cob_id(node, k)));
                     let d = g.data();
-                    sealed(ACTION_BASE_ID + k as u16, d, &mut self.tx_action[k]);
+                    sealed(tpdo_cob_id(node, k), d, &mut self.tx_action[k]);
                     assert_eq!(d[1] >> 4, sample, "action frames of one action disagree");
                     for s in 0..SIGNALS_PER_FRAME {
                         let j = k * SIGNALS_PER_FRAME + s;
@@ -107,12 +120,15 @@ impl<'p> Run<'p> {
             }
             if id == EMCY_BASE_ID + u16::from(node) {
                 sealed(id, data, &mut self.tx_emcy);
+                assert_eq!(data[5], 0, "reserved emergency byte");
+                assert_eq!(data[6] >> 4, 0, "emergency counter byte's high nibble");
                 parsed.push(Out::Emcy {
-                    code: u16::from_le_bytes([data[2], data[3]]),
-                    fault: data[4],
-                    state: data[5],
+                    code: u16::from_le_bytes([data[0], data[1]]),
+                    register: data[2],
+                    fault: data[3],
+                    state: data[4],
                 });
-            } else if id == POLICY_INFO_ID {
+            } else if id == tpdo_cob_id(node, POLICY_INFO_TPDO) {
                 sealed(id, data, &mut self.tx_info);
                 parsed.push(Out::Info {
                     hash: u32::from_le_bytes([data[2], data[3], data[4], data[5]]),
@@ -120,22 +136,18 @@ impl<'p> Run<'p> {
                     task: data[7],
                 });
             } else if id == HEARTBEAT_BASE_ID + u16::from(node) {
-                assert_eq!(data.len(), 5, "heartbeat length");
+                assert_eq!(data.len(), 1, "heartbeat length (CiA 301: the NMT state)");
+                assert!(
+                    matches!(data[0], 0x00 | 0x04 | 0x05 | 0x7F),
+                    "heartbeat state {:#x}",
+                    data[0]
+                );
+                parsed.push(Out::Heartbeat { canopen: data[0] });
+            } else if id == tpdo_cob_id(node, STATUS_TPDO) {
+                sealed(id, data, &mut self.tx_status);
                 assert_eq!(data[4], 0, "envelope status byte with the envelope off");
-                let canopen = [
-                    State::Boot,
-                    State::PreOperational,
-                    State::Operational,
-                    State::SafeStop,
-                    State::Fault,
-                ]
-                .iter()
-                .find(|s| s.code() == data[2])
-                .map(|s| s.canopen());
-                assert_eq!(canopen, Some(data[0]), "heartbeat state bytes disagree");
-                parsed.push(Out::Heartbeat {
-                    canopen: data[0],
-                    counter: data[1],
+                assert!(data[2] <= 4, "status state {}", data[2]);
+                parsed.push(Out::Status {
                     state: data[2],
                     fault: data[3],
                 });
@@ -220,15 +232,25 @@ impl<'p> Run<'p> {
                 legal,
                 "illegal transition {before:?} -> {after:?} on {event:?}"
             );
-            // A state change is announced by a heartbeat carrying the new state (reset goes to
-            // Boot silently: the boot-up heartbeat follows at the next cycle).
+            // A state change is announced by the status TPDO carrying the new state, and by a
+            // heartbeat with its NMT state when the heartbeat is on (reset goes to Boot
+            // silently: the boot-up heartbeat follows at the next cycle).
             if after != Boot {
                 assert!(
                     parsed.iter().any(
-                        |o| matches!(o, Out::Heartbeat { state, .. } if *state == after.code())
+                        |o| matches!(o, Out::Status { state, .. } if *state == after.code())
                     ),
-                    "{before:?} -> {after:?} without a heartbeat"
+                    "{before:?} -> {after:?} without a status"
                 );
+                if self.model.cfg.heartbeat_cycles != 0 {
+                    assert!(
+                        parsed.iter().any(|o| matches!(
+                            o,
+                            Out::Heartbeat { canopen } if *canopen == after.canopen()
+                        )),
+                        "{before:?} -> {after:?} without a heartbeat"
+                    );
+                }
             }
         }
         if c.is_bus_off() || c.policy_info().is_none() {

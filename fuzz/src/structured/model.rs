@@ -3,14 +3,15 @@
 //! bus-off, heartbeat and policy-info scheduling, safe-action sample counter) that predicts every
 //! frame of every step: each action bit for bit (the model evaluates its own `Mlp` over the same
 //! policy bytes, so an action computed from anything but the completed sample's values shows), each
-//! emergency (code, fault, state), heartbeat and policy-info frame, plus the state, the latched fault
+//! emergency (code, error register, fault, state), heartbeat (one NMT state byte), status TPDO
+//! (state, fault) and policy-info frame, plus the state, the latched fault
 //! and the diagnostic counters. [`super::checks`] compares them with the controller's.
 
 use dex_policy::FORMAT_VERSION;
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::{COUNTER_MAX, crc8};
 use dex_runtime::can::messages::{
-    ACTION_QUANTITY, NMT_ID, NmtCommand, OBS_BASE_ID, OBS_FRAMES, SIGNALS_PER_FRAME, from_raw,
+    ACTION_QUANTITY, NMT_ID, NmtCommand, OBS_FRAMES, SIGNALS_PER_FRAME, from_raw, rpdo_cob_id,
     to_raw,
 };
 use dex_runtime::controller::PolicyInfo;
@@ -31,12 +32,16 @@ pub(crate) enum Out {
     },
     Emcy {
         code: u16,
+        register: u8,
         fault: u8,
         state: u8,
     },
+    /// CiA 301 heartbeat: the NMT state byte alone.
     Heartbeat {
         canopen: u8,
-        counter: u8,
+    },
+    /// The status TPDO sent with every heartbeat and state change.
+    Status {
         state: u8,
         fault: u8,
     },
@@ -71,7 +76,6 @@ pub(crate) struct Model<'p> {
     pub(crate) cycles_since_heartbeat: u32,
     pub(crate) announce: bool,
     pub(crate) own_sample: u8,
-    pub(crate) heartbeat_counter: u8,
     pub(crate) action: [f32; ACT_DIM],
     pub(crate) diag: Diagnostics,
     pub(crate) out: Vec<Out>,
@@ -96,22 +100,41 @@ impl<'p> Model<'p> {
             cycles_since_heartbeat: 0,
             announce: false,
             own_sample: 0,
-            heartbeat_counter: 0,
             action: [0.0; ACT_DIM],
             diag: Diagnostics::default(),
             out: Vec::new(),
         }
     }
 
+    /// The producer heartbeat time in ms as the controller starts with it (0x1017; the fuzz
+    /// target writes no SDO): `heartbeat_cycles` periods, 0 = no heartbeat.
+    fn heartbeat_ms(&self) -> u64 {
+        (u64::from(self.cfg.heartbeat_cycles) * PERIOD / 1000).min(u64::from(u16::MAX))
+    }
+
+    /// The heartbeat (when on) and the status TPDO.
     fn heartbeat(&mut self) {
         self.cycles_since_heartbeat = 0;
-        self.out.push(Out::Heartbeat {
-            canopen: self.state.canopen(),
-            counter: self.heartbeat_counter,
+        if self.heartbeat_ms() != 0 {
+            self.out.push(Out::Heartbeat {
+                canopen: self.state.canopen(),
+            });
+        }
+        self.out.push(Out::Status {
             state: self.state.code(),
             fault: self.fault.code(),
         });
-        self.heartbeat_counter = self.heartbeat_counter.wrapping_add(1);
+    }
+
+    /// The error register as documented (0x1001): 0 without a latched fault (the envelope's
+    /// warning is none), generic + communication for a watchdog timeout or bus-off, generic +
+    /// manufacturer-specific for the others.
+    fn register(&self) -> u8 {
+        match self.fault {
+            FaultCode::None | FaultCode::EnvelopeSustained => 0,
+            FaultCode::ObservationTimeout | FaultCode::BusOff => 0x11,
+            _ => 0x81,
+        }
     }
 
     fn enter(&mut self, state: State) {
@@ -127,6 +150,7 @@ impl<'p> Model<'p> {
     fn emcy(&mut self, fault: FaultCode) {
         self.out.push(Out::Emcy {
             code: fault.emcy_code(),
+            register: self.register(),
             fault: fault.code(),
             state: self.state.code(),
         });
@@ -150,7 +174,10 @@ impl<'p> Model<'p> {
 
     fn boot_up(&mut self) {
         self.state = State::Boot;
-        self.heartbeat();
+        // The boot-up message goes out whatever the heartbeat time.
+        self.out.push(Out::Heartbeat {
+            canopen: State::Boot.canopen(),
+        });
         self.enter(State::PreOperational);
     }
 
@@ -181,7 +208,7 @@ impl<'p> Model<'p> {
         }
         self.frames_this_cycle = false;
         self.evaluations_this_cycle = 0;
-        let heartbeats = self.heartbeat_counter;
+        let before = self.out.len();
         match self.state {
             State::Boot => self.boot_up(),
             State::Operational => {
@@ -193,9 +220,11 @@ impl<'p> Model<'p> {
         }
         self.cycles_since_heartbeat += 1;
         // At most one heartbeat per cycle: none on schedule when the state change sent one.
-        if self.heartbeat_counter == heartbeats
-            && self.cycles_since_heartbeat >= self.cfg.heartbeat_cycles
-        {
+        let sent = self.out[before..]
+            .iter()
+            .any(|o| matches!(o, Out::Status { .. }));
+        let ms = self.heartbeat_ms();
+        if ms != 0 && !sent && u64::from(self.cycles_since_heartbeat) * PERIOD >= ms * 1000 {
             self.heartbeat();
         }
         if self.announce {
@@ -221,8 +250,8 @@ impl<'p> Model<'p> {
         let data = frame.data();
         if id == NMT_ID {
             self.nmt(data, now);
-        } else if (OBS_BASE_ID..OBS_BASE_ID + OBS_FRAMES as u16).contains(&id) {
-            self.observation(usize::from(id - OBS_BASE_ID), data, now);
+        } else if let Some(k) = (0..OBS_FRAMES).find(|&k| rpdo_cob_id(self.cfg.node_id, k) == id) {
+            self.observation(k, data, now);
         } else {
             self.diag.ignored_frames += 1;
         }
@@ -284,7 +313,7 @@ impl<'p> Model<'p> {
             return;
         }
         // E2E (docs/runtime.md): CRC and counter 0..=14, then the counter's advance.
-        if crc8(OBS_BASE_ID + k as u16, data) != data[0] || data[1] & 0x0F > COUNTER_MAX {
+        if crc8(rpdo_cob_id(self.cfg.node_id, k), data) != data[0] || data[1] & 0x0F > COUNTER_MAX {
             self.diag.e2e_errors += 1;
             return;
         }

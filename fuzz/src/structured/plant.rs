@@ -3,7 +3,7 @@
 
 use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::{COUNTER_MAX, next_counter, protect};
-use dex_runtime::can::messages::{OBS_BASE_ID, OBS_FRAMES, SIGNALS_PER_FRAME};
+use dex_runtime::can::messages::{OBS_FRAMES, SIGNALS_PER_FRAME, rpdo_cob_id};
 use dex_runtime::interface::OBS_DIM;
 
 use super::input::{Flaw, SampleSel, Values, value_raw};
@@ -11,6 +11,8 @@ use super::input::{Flaw, SampleSel, Values, value_raw};
 /// The plant's sending side: one alive counter per observation frame and the current sample.
 #[derive(Debug, Default)]
 pub(crate) struct Plant {
+    /// The controller's node id (its RPDO identifiers).
+    pub(crate) node: u8,
     next: [u8; OBS_FRAMES],
     last: [Option<u8>; OBS_FRAMES],
     sample: u8,
@@ -34,7 +36,7 @@ impl Plant {
         values: Values,
         flaw: Option<Flaw>,
     ) -> Vec<CanFrame> {
-        let id = OBS_BASE_ID + k as u16;
+        let id = rpdo_cob_id(self.node, k);
         let mut counter = self.next[k];
         match flaw {
             Some(Flaw::RepeatCounter) => counter = self.last[k].unwrap_or(counter),

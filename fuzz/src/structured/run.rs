@@ -3,7 +3,7 @@
 
 use dex_policy::PolicyView;
 use dex_runtime::can::CanFrame;
-use dex_runtime::can::messages::{ACTION_FRAMES, NMT_ID, NmtCommand, OBS_BASE_ID, OBS_FRAMES};
+use dex_runtime::can::messages::{ACTION_FRAMES, NMT_ID, NmtCommand, OBS_FRAMES, rpdo_cob_id};
 use dex_runtime::controller::PolicyInfo;
 use dex_runtime::{Clock, Controller, LoadError, Mlp, MockClock, Outbox, State};
 use embedded_can::Frame;
@@ -23,6 +23,7 @@ pub(crate) struct Run<'p> {
     pub(crate) tx_action: [u8; ACTION_FRAMES],
     pub(crate) tx_emcy: u8,
     pub(crate) tx_info: u8,
+    pub(crate) tx_status: u8,
 }
 
 impl<'p> Run<'p> {
@@ -31,7 +32,7 @@ impl<'p> Run<'p> {
         let id = frame.standard_id().expect("standard");
         let event = if id == NMT_ID {
             Event::Nmt(frame.data().first().and_then(|&c| NmtCommand::from_code(c)))
-        } else if (OBS_BASE_ID..OBS_BASE_ID + OBS_FRAMES as u16).contains(&id) {
+        } else if (0..OBS_FRAMES).any(|k| rpdo_cob_id(self.model.cfg.node_id, k) == id) {
             Event::Observation
         } else {
             Event::Other
@@ -50,6 +51,7 @@ impl<'p> Run<'p> {
             self.tx_action = [0; ACTION_FRAMES];
             self.tx_emcy = 0;
             self.tx_info = 0;
+            self.tx_status = 0;
         }
         let nibble =
             (event == Event::Observation && frame.data().len() >= 2).then(|| frame.data()[1] >> 4);

@@ -4,7 +4,7 @@
 use crc::{CRC_32_ISO_HDLC, Crc};
 use dex_policy::{CRC_OFFSET, PolicyView, file_crc};
 use dex_runtime::can::CanFrame;
-use dex_runtime::can::messages::{ACTION_FRAMES, NMT_ID, NmtCommand, OBS_FRAMES};
+use dex_runtime::can::messages::{ACTION_FRAMES, NMT_ID, NODE_ID_MAX, NmtCommand, OBS_FRAMES};
 use dex_runtime::envelope::EnvelopeConfig;
 use dex_runtime::interface::CONTROL_PERIOD_US;
 use dex_runtime::testkit::aligned_copy;
@@ -31,7 +31,7 @@ pub fn run_scenario(input: &Input) {
     let images = images();
     let loadable = images.iter().filter(|i| i.loads).count();
     let cfg = ControllerConfig {
-        node_id: 1 + input.node_id % 127,
+        node_id: 1 + input.node_id % NODE_ID_MAX,
         period_us: CONTROL_PERIOD_US,
         watchdog_cycles: u32::from(input.watchdog_cycles % 7),
         heartbeat_cycles: u32::from(input.heartbeat_cycles % 21),
@@ -53,6 +53,7 @@ pub fn run_scenario(input: &Input) {
         tx_action: [0; ACTION_FRAMES],
         tx_emcy: 0,
         tx_info: 0,
+        tx_status: 0,
     };
     if let Some(i) = input.initial_policy {
         let image = &images[usize::from(i) % loadable];
@@ -60,6 +61,7 @@ pub fn run_scenario(input: &Input) {
         run.load(&view, true);
     }
     let mut plant = Plant::default();
+    plant.node = cfg.node_id;
     let mut staging = Staging::Empty;
     for op in input.ops.iter().take(512) {
         match *op {

@@ -10,8 +10,12 @@
 //! | 0x1017 | 0 | producer heartbeat time, ms | u16 | rw |
 //! | 0x1018 | 0..=4 | identity: 4, vendor id, product code, revision, serial number | u8, u32 | ro |
 //! | 0x1029 | 0..=1 | error behaviour: 1; communication error (0 pre-operational, 1 no change, 2 stopped) | u8 | ro, rw |
-//! | 0x2000 | 0..=5 | active policy: 5; layout hash u32, format version u16, file CRC u32, task u8, slot generation u32 | | ro |
+//! | 0x2000 | 0..=5 | active policy: 5; layout hash u32, format version u8, file CRC u32, task u8, slot generation u32 | | ro |
 //! | 0x2001 | 0 | safety envelope status (the envelope's status byte) | u8 | ro |
+//! | 0x2002 | 0..=2 | controller status: 2; controller state u8, fault code u8 | | ro |
+//!
+//! and the PDO objects ([`super::pdo`]: 0x1400.., 0x1600.., 0x1800.., 0x1A00.., and the mapped
+//! observation and action values and E2E headers 0x2100, 0x2101, 0x2200, 0x2201).
 //!
 //! Values the controller owns (its state, its policy, the envelope) are read through
 //! [`DeviceHost`]; what the dictionary owns (heartbeat time, error history, error behaviour) is in
@@ -22,6 +26,7 @@ use super::od::{
     Access, DataType, Entry, Object, ObjectDictionary, ObjectKind, SubObject, Value, basic_entry,
     find, read_value,
 };
+use super::pdo;
 use super::program::{ProgramHost, ProgramObjects, is_program_object};
 
 /// Most emergency codes kept in 0x1003.
@@ -56,7 +61,7 @@ const RW: Access = Access::ReadWrite;
 /// The communication and manufacturer objects the dictionary serves (the table above): access
 /// and size of every request come from here ([`ObjectDictionary::entry`]), and `can/jaco.eds`
 /// is generated from it (with [`super::program::OBJECTS`]).
-pub const OBJECTS: [Object; 8] = [
+pub const OBJECTS: [Object; 9] = [
     Object {
         index: 0x1000,
         name: "Device type",
@@ -119,7 +124,7 @@ pub const OBJECTS: [Object; 8] = [
         subs: &[
             sub(0, "Highest sub-index supported", U8, RO, Value::Const(5)),
             sub(1, "Layout hash", U32, RO, Value::Live),
-            sub(2, "Format version", U16, RO, Value::Live),
+            sub(2, "Format version", U8, RO, Value::Live),
             sub(3, "File CRC-32", U32, RO, Value::Live),
             sub(4, "Task", U8, RO, Value::Live),
             sub(5, "Slot generation", U32, RO, Value::Live),
@@ -130,6 +135,16 @@ pub const OBJECTS: [Object; 8] = [
         name: "Envelope status",
         kind: ObjectKind::Var,
         subs: &[sub(0, "Envelope status", U8, RO, Value::Live)],
+    },
+    Object {
+        index: 0x2002,
+        name: "Controller status",
+        kind: ObjectKind::Record,
+        subs: &[
+            sub(0, "Highest sub-index supported", U8, RO, Value::Const(2)),
+            sub(1, "Controller state", U8, RO, Value::Live),
+            sub(2, "Fault code", U8, RO, Value::Live),
+        ],
     },
 ];
 
@@ -175,8 +190,32 @@ pub trait DeviceHost {
     fn error_register(&self) -> u8;
     /// The active policy, if any.
     fn active_policy(&self) -> Option<ActivePolicy>;
-    /// The safety envelope's status byte.
+    /// The safety envelope's status byte (0x2001).
     fn envelope_status(&self) -> u8;
+    /// The controller state's code (0x2002:1: 0 boot, 1 pre-operational, 2 operational,
+    /// 3 safe-stop, 4 fault).
+    fn controller_state(&self) -> u8;
+    /// The latched fault code (0x2002:2; 0: none).
+    fn fault_code(&self) -> u8;
+    /// The node id (the COB-IDs of the PDO communication objects).
+    fn node_id(&self) -> u8;
+    /// Raw value `index` of the last complete observation (0x2100:index+1).
+    fn observation_raw(&self, index: usize) -> i16;
+    /// Raw value `index` of the last action sent (0x2200:index+1).
+    fn action_raw(&self, index: usize) -> i16;
+    /// Bytes 0-1 (CRC, counter and sample nibble; little-endian) of the last accepted
+    /// observation frame `k` (0x2101:k+1; 0 before one).
+    fn observation_header(&self, k: usize) -> u16;
+    /// Bytes 0-1 of the last frame sent on TPDO `k` (0x2201:k+1; 0 before one).
+    fn tpdo_header(&self, k: usize) -> u16;
+}
+
+/// A sub-object of the dictionary's basic objects: [`OBJECTS`], then the PDO objects.
+fn find_basic(index: u16, sub: u8) -> Result<&'static SubObject, SdoAbort> {
+    match find(&OBJECTS, index, sub) {
+        Err(SdoAbort::NoObject) => find(&pdo::OBJECTS, index, sub),
+        other => other,
+    }
 }
 
 /// What the dictionary keeps between requests.
@@ -262,10 +301,11 @@ impl<'a, 'r, H: DeviceHost + ProgramHost> DeviceObjects<'a, 'r, H> {
 
     /// The value of a basic object as little-endian bytes and its length.
     fn value(&self, index: u16, sub: u8) -> Result<([u8; 4], usize), SdoAbort> {
-        let desc = find(&OBJECTS, index, sub)?;
+        let desc = find_basic(index, sub)?;
         let len = desc.data_type.size().unwrap_or(4) as usize;
         let v = match desc.value {
             Value::Const(v) => v,
+            Value::NodeId(base) => base + u32::from(self.host().node_id()),
             Value::Stored => self.state.stored(index, sub).ok_or(SdoAbort::NoData)?,
             Value::Live => self.live(index, sub)?,
         };
@@ -288,6 +328,20 @@ impl<'a, 'r, H: DeviceHost + ProgramHost> DeviceObjects<'a, 'r, H> {
             (0x2000, 4) => Ok(u32::from(policy.task)),
             (0x2000, 5) => Ok(self.program.slots.active().map_or(0, |f| f.generation)),
             (0x2001, 0) => Ok(u32::from(self.host().envelope_status())),
+            (0x2002, 1) => Ok(u32::from(self.host().controller_state())),
+            (0x2002, 2) => Ok(u32::from(self.host().fault_code())),
+            (pdo::OBSERVATION_VALUES, s) if s >= 1 => Ok(u32::from(
+                self.host().observation_raw(usize::from(s) - 1) as u16,
+            )),
+            (pdo::ACTION_VALUES, s) if s >= 1 => {
+                Ok(u32::from(self.host().action_raw(usize::from(s) - 1) as u16))
+            }
+            (pdo::OBSERVATION_E2E, s) if s >= 1 => Ok(u32::from(
+                self.host().observation_header(usize::from(s) - 1),
+            )),
+            (pdo::TPDO_E2E, s) if s >= 1 => {
+                Ok(u32::from(self.host().tpdo_header(usize::from(s) - 1)))
+            }
             _ => Err(SdoAbort::NoData),
         }
     }
@@ -299,7 +353,7 @@ impl<H: DeviceHost + ProgramHost> ObjectDictionary for DeviceObjects<'_, '_, H> 
             return self.program.entry(index, sub);
         }
         // An empty slot of the error history exists too (it reads as "no data").
-        Ok(basic_entry(find(&OBJECTS, index, sub)?))
+        Ok(basic_entry(find_basic(index, sub)?))
     }
 
     fn read(

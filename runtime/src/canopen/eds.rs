@@ -11,16 +11,37 @@ use std::vec::Vec;
 
 use super::device::{self, DeviceState};
 use super::od::{Access, DataType, Object, SubObject, Value};
-use super::program;
+use super::{pdo, program};
 
 /// Every object of the dictionary, in index order.
 pub fn objects() -> Vec<&'static Object> {
     let mut all: Vec<&'static Object> = device::OBJECTS
         .iter()
         .chain(program::OBJECTS.iter())
+        .chain(pdo::OBJECTS.iter())
         .collect();
     all.sort_by_key(|o| o.index);
     all
+}
+
+/// Whether `index`:`sub` is mapped into a PDO (the EDS's `PDOMapping=1`).
+fn mapped(index: u16, sub: u8) -> bool {
+    pdo::OBJECTS
+        .iter()
+        .filter(|o| (0x1600..0x1800).contains(&o.index) || (0x1A00..0x1C00).contains(&o.index))
+        .flat_map(|o| o.subs.iter().skip(1))
+        .any(|s| matches!(s.value, Value::Const(v) if v >> 8 == (u32::from(index) << 8) | u32::from(sub)))
+}
+
+/// The number of RPDOs and TPDOs the dictionary describes.
+fn pdo_counts() -> (usize, usize) {
+    let count = |range: core::ops::Range<u16>| {
+        pdo::OBJECTS
+            .iter()
+            .filter(|o| range.contains(&o.index))
+            .count()
+    };
+    (count(0x1400..0x1600), count(0x1800..0x1A00))
 }
 
 /// The EDS access type of a sub-object: `const` for a constant, else `ro`, `wo` or `rw`.
@@ -39,9 +60,11 @@ fn default_value(object: &Object, sub: &SubObject, state: &DeviceState) -> Optio
         Value::Const(v) => v,
         Value::Stored => state.stored(object.index, sub.sub)?,
         Value::Live => return None,
+        Value::NodeId(base) => return Some(std::format!("$NODEID+0x{base:X}")),
     };
     Some(match sub.data_type {
         DataType::Unsigned8 | DataType::Unsigned16 => std::format!("{value}"),
+        DataType::Integer16 => std::format!("{}", value as u16 as i16),
         DataType::Unsigned32 => std::format!("0x{value:08X}"),
         DataType::Domain => return None,
     })
@@ -63,7 +86,11 @@ fn variable(
     if let Some(v) = default_value(object, sub, state) {
         let _ = writeln!(out, "DefaultValue={v}");
     }
-    let _ = writeln!(out, "PDOMapping=0");
+    let _ = writeln!(
+        out,
+        "PDOMapping={}",
+        u8::from(mapped(object.index, sub.sub))
+    );
     out.push('\n');
 }
 
@@ -100,20 +127,27 @@ pub fn generate(state: &DeviceState) -> String {
     out.push_str(
         "OrderCode=\nBaudRate_10=0\nBaudRate_20=0\nBaudRate_50=0\nBaudRate_125=1\nBaudRate_250=1\n\
          BaudRate_500=1\nBaudRate_800=0\nBaudRate_1000=1\nSimpleBootUpMaster=0\n\
-         SimpleBootUpSlave=1\nGranularity=0\nDynamicChannelsSupported=0\nGroupMessaging=0\n\
-         NrOfRXPDO=0\nNrOfTXPDO=0\nLSS_Supported=0\n\n",
+         SimpleBootUpSlave=1\nGranularity=0\nDynamicChannelsSupported=0\nGroupMessaging=0\n",
+    );
+    let (rpdos, tpdos) = pdo_counts();
+    let _ = writeln!(
+        out,
+        "NrOfRXPDO={rpdos}\nNrOfTXPDO={tpdos}\nLSS_Supported=0\n"
     );
     out.push_str("[DummyUsage]\n");
-    for k in 1..=7 {
-        let _ = writeln!(out, "Dummy{k:04}=0");
+    for k in 1..=7u16 {
+        // The last observation frame's padding is mapped to the INTEGER16 dummy.
+        let _ = writeln!(out, "Dummy{k:04}={}", u8::from(k == pdo::DUMMY_INTEGER16));
     }
     out.push('\n');
     out.push_str(
-        "[Comments]\nLines=4\n\
-         Line1=Node id: 0x10 by default. SDO on 0x600+node (requests) and 0x580+node (responses).\n\
+        "[Comments]\nLines=6\n\
+         Line1=Node id 1..31, 0x10 by default. SDO on 0x600+node (requests) and 0x580+node (responses).\n\
          Line2=0x1F50:1 takes a policy file (.dxpl) by block or segmented download into the spare slot.\n\
          Line3=0x1F51:1 = 1 starts it, 3 clears it, 0x80 rolls back, 0 stops. 0x1F56:1 is the active file's CRC-32.\n\
-         Line4=0x2000 describes the active policy, 0x2001 the safety envelope status (docs/runtime.md).\n\n",
+         Line4=0x2000 describes the active policy, 0x2001 the safety envelope status, 0x2002 the controller state and fault (docs/runtime.md).\n\
+         Line5=PDOs (fixed mapping): RPDO k = observation frame k, TPDO 0-2 actions, 3 policy info, 4 status; E2E CRC and counter in bytes 0-1.\n\
+         Line6=RPDO/TPDO 5 and up use the pre-defined COB-IDs of node+32, +64, +96: give those ids to no other device.\n\n",
     );
 
     let all = objects();

@@ -77,6 +77,8 @@ pub fn read_value(value: &[u8], offset: u32, buf: &mut [u8]) -> usize {
 /// CiA 301 data type of an object, as the dictionary serves it and the EDS lists it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DataType {
+    /// INTEGER16 (0x0003): a raw signal value.
+    Integer16,
     /// UNSIGNED8 (0x0005).
     Unsigned8,
     /// UNSIGNED16 (0x0006).
@@ -91,6 +93,7 @@ impl DataType {
     /// The CiA 301 data type index (the EDS's `DataType`).
     pub const fn code(self) -> u16 {
         match self {
+            DataType::Integer16 => 0x0003,
             DataType::Unsigned8 => 0x0005,
             DataType::Unsigned16 => 0x0006,
             DataType::Unsigned32 => 0x0007,
@@ -102,6 +105,7 @@ impl DataType {
     pub const fn size(self) -> Option<u32> {
         match self {
             DataType::Unsigned8 => Some(1),
+            DataType::Integer16 => Some(2),
             DataType::Unsigned16 => Some(2),
             DataType::Unsigned32 => Some(4),
             DataType::Domain => None,
@@ -119,6 +123,8 @@ pub enum Value {
     Stored,
     /// Read from the controller or the slots at the time of the request (no static default).
     Live,
+    /// This value plus the node id (a COB-ID): `$NODEID+value` in the EDS.
+    NodeId(u32),
 }
 
 /// How the sub-objects of an object are organised (CiA 301 object code).
