@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::env::{EnvConfig, EnvError, Reward, StartScheme, Task};
+use crate::learn::bc::BcConfig;
 use crate::learn::{LearnError, RunConfig, TargetUpdate};
+use crate::pipeline::imitation::{ImitationConfig, ImitationError};
 
 /// Why settings could not be loaded, or are not valid.
 #[derive(Debug, thiserror::Error)]
@@ -103,6 +105,15 @@ pub enum SettingsError {
          frozen_from_init needs init_policy"
     )]
     InitPolicyNorm,
+    /// Both a clone stage and `init_policy`: two starting points for the actor.
+    #[error(
+        "[clone] (--clone) makes the actor's starting point and init_policy (--init-policy) names \
+         another: give one of them"
+    )]
+    CloneAndInitPolicy,
+    /// The clone stage's imitation settings are out of range.
+    #[error("invalid [clone] settings")]
+    Clone(#[source] ImitationError),
 }
 
 /// A key of a settings file that no setting has, by its dotted path (`run.updates_per_step`).
@@ -303,8 +314,58 @@ pub struct TrainSettings {
     /// (`dex_runtime::features`; `--features`); the exported file lists them, the runtime
     /// computes them. An `init_policy` must agree.
     pub features: bool,
+    /// The clone stage (`[clone]`, `--clone`): before each seed's reinforcement learning, the
+    /// imitation learner clones the Markov demonstrator into `OUT/clone/seed-S` and the seed's
+    /// actor starts from that file, as it would from `init_policy` (which must then be unset).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clone: Option<CloneStage>,
     /// The learner.
     pub run: RunConfig,
+}
+
+/// The clone stage of a pipeline run: `trainer imitate`'s recipe for the task
+/// ([`ImitationConfig::for_task`]) with the run's seed, actor sizes, task features and evaluation
+/// threads; each field, when set, overrides the recipe's.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CloneStage {
+    /// Clean demonstrator episodes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub demo_episodes: Option<u32>,
+    /// Demonstrator episodes with noise on the executed actions (DART).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dart_episodes: Option<u32>,
+    /// Stack only: DART episodes started with brick 1 in the hand.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub in_hand_episodes: Option<u32>,
+    /// Behaviour-cloning gradient steps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bc_steps: Option<u64>,
+    /// Selection starts of the clone.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub select_episodes: Option<u32>,
+}
+
+impl CloneStage {
+    /// The imitation run of seed `seed` of a run with settings `s`.
+    pub fn imitation(&self, s: &TrainSettings, seed: u64) -> ImitationConfig {
+        let base = ImitationConfig::for_task(s.task.task());
+        ImitationConfig {
+            demo_episodes: self.demo_episodes.unwrap_or(base.demo_episodes),
+            dart_episodes: self.dart_episodes.unwrap_or(base.dart_episodes),
+            in_hand_episodes: self.in_hand_episodes.unwrap_or(base.in_hand_episodes),
+            select_episodes: self.select_episodes.unwrap_or(base.select_episodes),
+            bc: BcConfig {
+                steps: self.bc_steps.unwrap_or(base.bc.steps),
+                hidden: s.run.ddpg.actor_hidden.clone(),
+                features: s.features,
+                ..base.bc.clone()
+            },
+            seed,
+            eval_threads: s.eval_threads,
+            ..base
+        }
+    }
 }
 
 /// Named starting points for the learner's settings.
@@ -319,7 +380,19 @@ pub enum PresetArg {
     /// cloning term on every row, TD3+BC's Q normalisation 2.5, actor lr 3e-5, raw observations,
     /// gamma 0.98 for the 150-step tasks.
     Demos,
+    /// The pipeline of issue #26: a clone stage (`trainer imitate`'s recipe for the task, with the
+    /// task features) and reinforcement learning from the clone that cannot forget it: 40,000
+    /// transitions (the `budget` the preset sets when the run gives none), a critic warm-up of
+    /// 10,000 updates on the clone's own transitions before the actor moves, R = 2, actor lr
+    /// 3e-5, 200 recorded Markov demonstrations a quarter of each batch with the cloning term at
+    /// weight 5 and TD3+BC's Q normalisation 2.5, gamma 0.98, the clone's 256-256 actor
+    /// (`experiments/finetune/*-features-clone-bc5.toml`; docs/experiments.md, session 14:
+    /// StackInHand 989 -> 995 of 1000, Stack 974 -> 981, Grasp 989 -> 978).
+    Finetune,
 }
+
+/// Transitions of the [`PresetArg::Finetune`] stage after the clone.
+pub const FINETUNE_TRANSITIONS: u64 = 40_000;
 
 impl PresetArg {
     /// Applies the preset to `s`'s learner settings.
@@ -336,6 +409,30 @@ impl PresetArg {
                 s.run.obs_norm.frozen_from_demos = false;
                 s.demo_files.clear();
                 s.record_demos = 0;
+            }
+            PresetArg::Finetune => {
+                if s.demo_files.is_empty() && s.record_demos == 0 {
+                    s.record_demos = 200;
+                }
+                s.clone.get_or_insert_with(CloneStage::default);
+                s.features = true;
+                s.run.demos = crate::learn::DemoDataConfig {
+                    fraction: 0.25,
+                    bc_weight: 5.0,
+                    q_filter: false,
+                    pretrain_updates: 0,
+                    q_normalisation: 2.5,
+                    pretrain_actor_lr: None,
+                };
+                s.run.critic_warmup_updates = 10_000;
+                s.run.updates_per_step = 2;
+                s.run.actor_adam.lr = 3e-5;
+                s.run.ddpg.actor_hidden = vec![256, 256];
+                s.run.obs_norm.enabled = false;
+                s.run.obs_norm.frozen_from_init = false;
+                if s.task != TaskArg::Reach {
+                    s.run.ddpg.gamma = 0.98;
+                }
             }
             PresetArg::Demos => {
                 if s.demo_files.is_empty() && s.record_demos == 0 {
@@ -391,6 +488,7 @@ impl Default for TrainSettings {
             record_demos: 0,
             demo_noise: 0.1,
             init_policy: None,
+            clone: None,
             features: false,
             run,
         }
@@ -526,8 +624,20 @@ impl TrainSettings {
         if self.init_policy.is_some() && self.run.obs_norm.enabled != from_init {
             return Err(SettingsError::InitPolicyNorm);
         }
-        if from_init && self.init_policy.is_none() {
+        if from_init && self.init_policy.is_none() && self.clone.is_none() {
             return Err(SettingsError::InitPolicyNorm);
+        }
+        if let Some(stage) = &self.clone {
+            if self.init_policy.is_some() {
+                return Err(SettingsError::CloneAndInitPolicy);
+            }
+            if self.run.obs_norm.enabled != from_init {
+                return Err(SettingsError::InitPolicyNorm);
+            }
+            stage
+                .imitation(self, 0)
+                .validate()
+                .map_err(SettingsError::Clone)?;
         }
         Ok(())
     }

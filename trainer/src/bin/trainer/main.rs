@@ -223,6 +223,11 @@ struct TrainArgs {
     /// clone); run.ddpg.actor_hidden must be its hidden sizes.
     #[arg(long)]
     init_policy: Option<PathBuf>,
+    /// A clone stage first: per seed, the imitation learner (`trainer imitate`'s recipe for the
+    /// task, the run's actor sizes and task features) clones the Markov demonstrator into
+    /// OUT/clone/seed-S, and the actor starts from that file (resumed like the rest of the run).
+    #[arg(long)]
+    clone: bool,
     /// The networks also take the controller's task features after the observation (the pinch
     /// site's yaw, the bricks' yaws relative to it, the pinch-to-brick vectors in its frame);
     /// an --init-policy must take them too.

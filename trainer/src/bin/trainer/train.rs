@@ -15,6 +15,7 @@ use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
 use dex_trainer::files::atomic_write::write_atomic;
 use dex_trainer::files::result_record::{RecordContext, ResultRecord};
 use dex_trainer::learn::Trainer;
+use dex_trainer::pipeline::imitation::ImitationEvent;
 use dex_trainer::pipeline::train_run::{TrainEvent, TrainPlan, export_selected};
 use dex_trainer::pipeline::train_settings::{self, PresetArg, RewardArg, TaskArg, TrainSettings};
 
@@ -51,6 +52,7 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.obs_norm_from_demos
         || a.q_normalisation.is_some()
         || a.init_policy.is_some()
+        || a.clone
         || a.features
         || a.critic_warmup_updates.is_some()
         || a.teacher_labels
@@ -116,6 +118,12 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
         s.select_best_episodes = e;
     }
     match a.preset {
+        Some(PresetArg::Finetune) => {
+            PresetArg::Finetune.apply(s);
+            if a.transitions.is_none() && a.config.is_none() {
+                s.transitions = train_settings::FINETUNE_TRANSITIONS;
+            }
+        }
         Some(p) => p.apply(s),
         // A task with no settings file and no learner flag gets the best measured configuration,
         // the learner from demonstrations, at the budget it was measured with.
@@ -172,6 +180,9 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if let Some(p) = &a.init_policy {
         s.init_policy = Some(p.clone());
+    }
+    if a.clone {
+        s.clone.get_or_insert_with(Default::default);
     }
     if a.features {
         s.features = true;
@@ -294,6 +305,20 @@ impl Terminal {
                 s.run.workers,
                 s.out.display()
             ),
+            TrainEvent::CloneStarted { seed, dir } => println!(
+                "seed {seed}: clone stage (the imitation learner) in {}",
+                dir.display()
+            ),
+            TrainEvent::Clone { seed, event } => self.show_clone(seed, event),
+            TrainEvent::Cloned { seed, policy } => {
+                if let Some(pb) = self.bar.take() {
+                    pb.finish_and_clear();
+                }
+                println!(
+                    "seed {seed}: the actor starts from the clone {}",
+                    policy.display()
+                );
+            }
             TrainEvent::RecordingDemos {
                 seed,
                 episodes,
@@ -383,6 +408,45 @@ impl Terminal {
                 eprintln!("no plot: {:#}", anyhow::Error::from(error));
             }
             _ => {}
+        }
+    }
+}
+
+impl Terminal {
+    /// A clone stage's progress: recording, a bar over the cloning steps, each round's selection.
+    fn show_clone(&mut self, seed: u64, event: ImitationEvent<'_>) {
+        match event {
+            ImitationEvent::Recording { round, episodes } => {
+                println!("seed {seed}: clone round {round}: recording {episodes} episodes");
+            }
+            ImitationEvent::Cloning { round, steps } => {
+                let pb = bar(
+                    steps,
+                    self.quiet,
+                    "{prefix} [{elapsed_precise}] [{bar:30}] {pos}/{len} cloning steps",
+                );
+                pb.set_prefix(format!("seed {seed} clone round {round}"));
+                self.bar = Some(pb);
+            }
+            ImitationEvent::CloneStep(step, _) => {
+                if let Some(pb) = &self.bar {
+                    pb.set_position(step);
+                }
+            }
+            ImitationEvent::Round(r) => {
+                if let Some(pb) = self.bar.take() {
+                    pb.finish_and_clear();
+                }
+                println!(
+                    "seed {seed}: clone round {}: {} env steps, {} cloning steps, {:.0} s: \
+                     selection success {:.1}%",
+                    r.eval_index,
+                    r.transitions,
+                    r.updates,
+                    r.wall_s,
+                    100.0 * r.success_rate
+                );
+            }
         }
     }
 }
@@ -573,5 +637,38 @@ mod tests {
         assert_eq!((s.record_demos, s.run.actor_adam.lr), (200, 1e-4));
         let s = settings(&["--preset", "demos", "--lr", "2e-4"]);
         assert_eq!((s.run.actor_adam.lr, s.run.critic_adam.lr), (2e-4, 2e-4));
+    }
+
+    #[test]
+    fn the_finetune_preset_is_the_clone_stage_and_rl_that_keeps_the_clone() {
+        let s = settings(&["--task", "stack", "--preset", "finetune"]);
+        assert_eq!(s.clone, Some(train_settings::CloneStage::default()));
+        assert!(s.features && s.init_policy.is_none());
+        assert_eq!(s.transitions, train_settings::FINETUNE_TRANSITIONS);
+        assert_eq!(
+            (
+                s.run.demos.bc_weight,
+                s.run.critic_warmup_updates,
+                s.record_demos
+            ),
+            (5.0, 10_000, 200)
+        );
+        assert_eq!(s.run.ddpg.actor_hidden, vec![256, 256]);
+        // The clone stage takes the task's imitation recipe with the run's seed and actor.
+        let cfg = s.clone.as_ref().unwrap().imitation(&s, 7);
+        assert_eq!((cfg.seed, cfg.bc.hidden.clone()), (7, vec![256, 256]));
+        assert_eq!(cfg.dart_episodes, 800); // Stack's recipe
+        let s = settings(&[
+            "--task",
+            "grasp",
+            "--preset",
+            "finetune",
+            "--transitions",
+            "1000",
+        ]);
+        assert_eq!(s.transitions, 1000);
+        // --clone alone adds the stage to the run's own learner.
+        let s = settings(&["--task", "grasp", "--clone", "--hidden", "64,64"]);
+        assert!(s.clone.is_some() && s.run.demos.bc_weight != 5.0);
     }
 }

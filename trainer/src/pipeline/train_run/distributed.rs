@@ -50,6 +50,9 @@ fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
     if s.run.quantise.aware_from.is_some() {
         return no("quantisation-aware training (it starts at a rank-local transition count)");
     }
+    if s.clone.is_some() {
+        return Err(TrainRunError::CloneDistributed);
+    }
     Ok(())
 }
 

@@ -10,6 +10,7 @@
 //! `settings.toml`, `eval.jsonl`, `best.json` + `best_actor.bin` (the selected checkpoint),
 //! `demos.dxdm` (recorded demonstrations, when asked for), `policy.dxpl` and `final_eval.json`.
 
+use std::borrow::Cow;
 use std::fs::OpenOptions;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -27,6 +28,7 @@ use crate::learn::distributed::server::Server;
 use crate::learn::distributed::worker::WorkerRank;
 use crate::learn::distributed::{DistributedConfig, DistributedError, ExchangeStats, Transport};
 use crate::learn::{DemoBuffer, EvalRecord, Event, LearnError, Progress, RunSummary, Trainer};
+use crate::pipeline::imitation::{ImitationEvent, run_imitation};
 use crate::pipeline::run_lock::{RunLock, RunLockError};
 use crate::pipeline::run_plots::{RunPlotError, plot_run};
 use crate::pipeline::train_settings::{SettingsError, TrainSettings};
@@ -53,6 +55,22 @@ pub enum TrainRunError {
     /// The settings are not valid, or could not be written.
     #[error(transparent)]
     Settings(#[from] SettingsError),
+    /// The clone stage (the imitation learner) failed.
+    #[error("clone stage in {}", dir.display())]
+    Clone {
+        /// The stage's run folder.
+        dir: PathBuf,
+        /// Why.
+        #[source]
+        source: crate::pipeline::imitation::ImitationError,
+    },
+    /// A clone stage in a distributed run (not supported yet: clone first with `trainer imitate`,
+    /// then start the distributed run from the file with `init_policy`).
+    #[error(
+        "the clone stage ([clone], --clone) does not run under --distributed yet: make the clone \
+         with `trainer imitate` and start the run from it with --init-policy"
+    )]
+    CloneDistributed,
     /// `start.demonstrator_policy` could not be read.
     #[error("cannot read demonstrator policy {}", path.display())]
     DemonstratorRead {
@@ -242,6 +260,27 @@ pub enum TrainEvent<'a> {
         /// The run's settings.
         settings: &'a TrainSettings,
     },
+    /// A seed's clone stage starts (or resumes): the imitation learner into `dir`.
+    CloneStarted {
+        /// The seed.
+        seed: u64,
+        /// The stage's run folder (`OUT/clone/seed-S`).
+        dir: &'a Path,
+    },
+    /// Progress of a seed's clone stage.
+    Clone {
+        /// The seed.
+        seed: u64,
+        /// What the imitation learner reports.
+        event: ImitationEvent<'a>,
+    },
+    /// A seed's clone is made; its actor starts from `policy`.
+    Cloned {
+        /// The seed.
+        seed: u64,
+        /// The clone's policy file.
+        policy: &'a Path,
+    },
     /// A seed's demonstrations are being recorded (none reusable in its folder).
     RecordingDemos {
         /// The seed.
@@ -420,6 +459,38 @@ impl TrainPlan {
         &self.settings
     }
 
+    /// The plan of seed `seed`: this one, or with a clone stage the same settings with the
+    /// seed's clone as `init_policy`, made first (or found made: the imitation learner resumes its
+    /// folder) in `OUT/clone/seed-S`.
+    fn for_seed(
+        &self,
+        seed: u64,
+        scene: &Scene,
+        on_event: &mut dyn FnMut(TrainEvent<'_>),
+    ) -> Result<Cow<'_, TrainPlan>, TrainRunError> {
+        let Some(stage) = &self.settings.clone else {
+            return Ok(Cow::Borrowed(self));
+        };
+        let cfg = stage.imitation(&self.settings, seed);
+        let dir = self.settings.out.join("clone").join(format!("seed-{seed}"));
+        on_event(TrainEvent::CloneStarted { seed, dir: &dir });
+        let summary = run_imitation(scene, &cfg, &dir, &mut |event| {
+            on_event(TrainEvent::Clone { seed, event });
+        })
+        .map_err(|source| TrainRunError::Clone {
+            dir: dir.clone(),
+            source,
+        })?;
+        on_event(TrainEvent::Cloned {
+            seed,
+            policy: &summary.policy,
+        });
+        let mut settings = self.settings.clone();
+        settings.clone = None;
+        settings.init_policy = Some(summary.policy);
+        TrainPlan::new(settings).map(Cow::Owned)
+    }
+
     /// Trains every seed into the run folder until done or `stop` is raised, holding each seed
     /// folder's [`RunLock`] while it trains (so two jobs may train other seeds of one run, one per
     /// core, but never the same seed); a seed with a checkpoint is continued only when `resume` (and only
@@ -440,7 +511,8 @@ impl TrainPlan {
         write_file(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
         on_event(TrainEvent::Started { settings: s });
         for &seed in &s.seeds {
-            if !train_seed(self, seed, scene, resume, stop, on_event, None)? {
+            let plan = self.for_seed(seed, scene, on_event)?;
+            if !train_seed(&plan, seed, scene, resume, stop, on_event, None)? {
                 return Ok(false);
             }
         }
