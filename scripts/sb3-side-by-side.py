@@ -182,12 +182,18 @@ def cmd_sb3(a) -> None:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     env_id = f"dexstack/{TASK_IDS[a.task]}-v0"
-    env = gym.make(env_id, reward=a.reward)
+    # Issue #27's protocol check: training episodes may start along the demonstrator's trajectories
+    # and be cut short; evaluation always runs from the task's original starts at its full length.
+    train_kw = {"start": a.start} if a.start != "original" else {}
+    if a.episode_steps is not None:
+        train_kw["episode_steps"] = a.episode_steps
+    env = gym.make(env_id, reward=a.reward, **train_kw)
     eval_env = gym.make(env_id, reward=a.reward)
     algo = {"sac": SAC, "td3": TD3}[a.algo]
     kw = sb3_kwargs(a.algo, a.variant, env.action_space.shape[0])
     model = algo("MlpPolicy", env, seed=a.seed, device="cpu", verbose=0, **kw)
     record = {"learner": f"SB3 {a.algo.upper()} ({a.variant})", "task": a.task, "reward": a.reward,
+              "start": a.start, "train_episode_steps": a.episode_steps,
               "transitions": a.transitions, "seed": a.seed, "torch": torch.__version__,
               "torch_threads": torch.get_num_threads(), "load_before": load(),
               "hyperparameters": {k: (v if k != "action_noise" else repr(v)) for k, v in kw.items()},
@@ -628,6 +634,10 @@ def main() -> None:
     s.add_argument("--reward", required=True, help="dexstack reward name (Reach: reach-shaping, as trainer's)")
     s.add_argument("--transitions", type=int, required=True)
     s.add_argument("--variant", choices=["default", "zoo"], default="default")
+    s.add_argument("--start", choices=["original", "along-demonstrations"], default="original",
+                   help="training episodes' starts (evaluation: always the original starts)")
+    s.add_argument("--episode-steps", type=int,
+                   help="training episodes' length (default: the task's, 50 along demonstrations)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--eval-every", type=int, default=5000)
     s.add_argument("--eval-starts", type=int, default=30)
