@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use dex_runtime::can::e2e::E2eSender;
 use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
 use dex_runtime::interface::CONTROL_PERIOD_US;
-use dex_runtime::testkit::observation_trace;
+use dex_runtime::synthetic::observation_trace;
 use embedded_can::Frame;
 
 use crate::bus::{Bus, BusConfig};

@@ -460,7 +460,7 @@ fn plant_command(addr: SocketAddr, ep: &EpisodeArgs, actions: Option<PathBuf>) -
     let mut lines = String::new();
     for (e, actions) in r.actions.iter().enumerate() {
         for (t, a) in actions.iter().enumerate() {
-            lines.push_str(&dex_runtime::testkit::action_line(e as u64, t, a));
+            lines.push_str(&dex_runtime::action_trace::action_line(e as u64, t, a));
         }
     }
     if !node.emergencies().is_empty() {
@@ -498,7 +498,7 @@ fn make_plant(kind: PlantKind, task: &str, steps: u32) -> Result<Box<dyn Plant>>
 fn bench_command(cycles: usize, realtime: bool, policy: Option<PathBuf>) -> Result<()> {
     let policy = match policy {
         Some(p) => std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?,
-        None => dex_runtime::testkit::jaco_policy(&[256, 256], 1)?,
+        None => dex_runtime::synthetic::jaco_policy(&[256, 256], 1)?,
     };
     let r = run_bench(&BenchConfig {
         cycles,
@@ -558,7 +558,7 @@ fn make_policy(
     faulting: bool,
 ) -> Result<()> {
     let bytes = if faulting {
-        dex_runtime::testkit::jaco_policy_faulting(hidden.first().copied().unwrap_or(8), seed)?
+        dex_runtime::synthetic::jaco_policy_faulting(hidden.first().copied().unwrap_or(8), seed)?
     } else if mismatched {
         use dex_policy::synth::{SynthSpec, synth_policy};
         use dex_runtime::interface::ACTION_JOINTS;
@@ -576,7 +576,7 @@ fn make_policy(
             seed,
         })?
     } else {
-        dex_runtime::testkit::jaco_policy(hidden, seed)?
+        dex_runtime::synthetic::jaco_policy(hidden, seed)?
     };
     let bytes = if int8 {
         let aligned = dex_runtime::aligned::aligned_copy(&bytes);

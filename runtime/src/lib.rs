@@ -16,7 +16,10 @@
 //! - [`seeds`] holds [`seeds::episode_seed`], the start seed of each evaluation episode, shared by
 //!   every program that runs episodes.
 //! - [`aligned`] (`std` only) holds [`aligned::aligned_copy`], the 8-byte-aligned copy of a policy
-//!   file that host programs decode and evaluate in place.
+//!   file that host programs decode and evaluate in place; [`synthetic`] (`std`) seeded synthetic
+//!   policies and observation traces (a policy where there is no trained one, benchmarks);
+//!   [`action_trace`] (`std`) the line format of action traces; `testkit` (`std`) test vectors
+//!   and frames for tests.
 //!
 //! `#![no_std]`, no `alloc`, no heap: every buffer has a size fixed at compile time, and one call
 //! does bounded work (at most one forward pass). It does not drive a CAN peripheral: a board
@@ -27,6 +30,8 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+#[cfg(feature = "std")]
+pub mod action_trace;
 #[cfg(feature = "std")]
 pub mod aligned;
 pub mod can;
@@ -46,6 +51,8 @@ pub mod mlp;
 pub mod observation;
 pub mod seeds;
 pub mod slots;
+#[cfg(feature = "std")]
+pub mod synthetic;
 #[cfg(feature = "std")]
 pub mod testkit;
 

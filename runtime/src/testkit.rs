@@ -1,90 +1,23 @@
-//! Synthetic policies on the cell's layout and observation traces, for tests, benchmarks, goldens
-//! and the firmware check (`std` only).
+//! The test kit (`std` only): the benchmark network, golden files' values, CAN test vectors and
+//! SDO / program-download frames for tests, benchmarks, goldens and the firmware check. Synthetic
+//! policies and observation traces live in [`crate::synthetic`], the action-trace line in
+//! [`crate::action_trace`] (both used by programs too); they are re-exported here for tests.
 
 use std::vec::Vec;
 
-use dex_policy::synth::{SplitMix64, SynthSpec, synth_policy};
+use dex_policy::synth::{SynthSpec, synth_policy};
 use dex_policy::{Activation, FormatError, Task};
 
-use crate::interface::{ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS, quantity_of};
+use crate::interface::quantity_of;
 
+pub use crate::action_trace::action_line;
 /// Re-exported for tests, benchmarks and examples written against the test kit; production code
 /// uses [`crate::aligned`].
 pub use crate::aligned::{AlignedBytes, aligned_copy};
-
-/// An observation field of a synthetic policy's layout: (name, size).
-pub type ObservationField = (&'static str, u16);
-/// An action joint of a synthetic policy's layout: (name, scale, min, max).
-pub type ActionJoint = (&'static str, f32, f32, f32);
-
-/// The cell's observation fields and action joints, as `dex_policy::synth::SynthSpec` takes them
-/// (for tests and fuzz targets that build their own synthetic policies on the cell's layout).
-pub fn cell_layout() -> (Vec<ObservationField>, Vec<ActionJoint>) {
-    let observation = OBSERVATION_FIELDS
-        .iter()
-        .map(|f| (f.name, f.size as u16))
-        .collect();
-    let action = ACTION_JOINTS
-        .iter()
-        .map(|j| (j.name, j.scale, j.min, j.max))
-        .collect();
-    (observation, action)
-}
-
-/// A random-weight policy file on the cell's layout with the given hidden widths.
-pub fn jaco_policy(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
-    let (observation, _) = cell_layout();
-    relu_tanh_policy(Task::Stack, &observation, hidden, seed)
-}
-
-/// A random-weight ReLU network with a tanh output on `observation` and the cell's joints.
-fn relu_tanh_policy(
-    task: Task,
-    observation: &[ObservationField],
-    hidden: &[u16],
-    seed: u64,
-) -> Result<Vec<u8>, FormatError> {
-    let (_, action) = cell_layout();
-    synth_policy(&SynthSpec {
-        task,
-        observation,
-        action: &action,
-        hidden,
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Tanh,
-        seed,
-    })
-}
-
-/// A valid policy file on the cell's layout (one hidden layer of `hidden`) whose every output is
-/// infinite for any observation: hidden weights 0 and biases `f32::MAX`, output weights and
-/// biases `f32::MAX`, linear output. It loads, and faults at its first evaluation.
-pub fn jaco_policy_faulting(hidden: u16, seed: u64) -> Result<Vec<u8>, FormatError> {
-    let (observation, action) = cell_layout();
-    let widths = [hidden];
-    let (body, mut values) = dex_policy::synth::synth_parts(&SynthSpec {
-        task: Task::Stack,
-        observation: &observation,
-        action: &action,
-        hidden: &widths,
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Linear,
-        seed,
-    })?;
-    let h = usize::from(hidden);
-    let w1 = 2 * OBS_DIM;
-    let b1 = w1 + OBS_DIM * h;
-    values[w1..b1].fill(0.0);
-    values[b1..].fill(f32::MAX);
-    dex_policy::encode_to_vec(&body, &values)
-}
-
-/// [`jaco_policy`] after post-training quantisation of every layer to int8 (format version 2).
-pub fn jaco_policy_int8(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
-    let f32_file = jaco_policy(hidden, seed)?;
-    let view = dex_policy::PolicyView::decode(&f32_file)?;
-    dex_policy::int8::quantise_policy(&view, |_| true, None)
-}
+pub use crate::synthetic::{
+    ActionJoint, ObservationField, cell_layout, jaco_policy, jaco_policy_faulting,
+    jaco_policy_int8, jaco_policy_with_features, observation_trace,
+};
 
 /// The benchmark network of the runtime issue: 48 inputs (one field "obs"), two hidden ReLU layers
 /// of 256, 9 tanh outputs (unit scale and limits), seed 1. Not the cell's layout: for speed only.
@@ -101,19 +34,6 @@ pub fn mlp_48_256_256_9() -> Result<Vec<u8>, FormatError> {
         output_activation: Activation::Tanh,
         seed: 1,
     })
-}
-
-/// `n` pseudo-random observations, each value within 90% of its quantity's limit.
-pub fn observation_trace(n: usize, seed: u64) -> Vec<[f32; OBS_DIM]> {
-    let mut rng = SplitMix64::new(seed);
-    (0..n)
-        .map(|_| {
-            core::array::from_fn(|i| {
-                let limit = quantity_of(i).map_or(1.0, |q| q.limit()) * 0.9;
-                rng.uniform(-limit, limit)
-            })
-        })
-        .collect()
 }
 
 /// Little-endian f32 values of a byte file (a trace or golden actions); a trailing partial value is
@@ -304,20 +224,6 @@ pub fn can_vectors_json() -> std::string::String {
     s
 }
 
-/// One line of an action trace, `episode step a0 ... a8\n`, each value in Rust's shortest
-/// round-trip decimal: the format `trainer eval --actions` and `hil-sim plant --actions` write, so
-/// two traces are equal exactly when every command is bit-identical.
-pub fn action_line(episode: u64, step: usize, action: &[f32]) -> std::string::String {
-    use core::fmt::Write;
-    let mut line = std::format!("{episode} {step}");
-    for a in action {
-        // Writing into a String cannot fail.
-        let _ = write!(line, " {a:?}");
-    }
-    line.push('\n');
-    line
-}
-
 /// The SDO request identifier of `node` (`0x600 + node`).
 fn sdo_request_id(node: u8) -> u16 {
     crate::controller::SDO_REQUEST_BASE + u16::from(node)
@@ -392,16 +298,4 @@ pub fn program_download(node: u8, image: &[u8]) -> Vec<crate::can::CanFrame> {
 /// The abort code of an SDO response's data, if it is an abort (`0x80`).
 pub fn sdo_abort_code(data: &[u8]) -> Option<u32> {
     crate::canopen::sdo::abort_code(data)
-}
-
-/// A random-weight policy file that takes the task features (`crate::features`): the cell's
-/// observation fields followed by [`crate::features::FEATURE_FIELDS`].
-pub fn jaco_policy_with_features(hidden: &[u16], seed: u64) -> Result<Vec<u8>, FormatError> {
-    let (mut observation, _) = cell_layout();
-    observation.extend(
-        crate::features::FEATURE_FIELDS
-            .iter()
-            .map(|f| (f.name, f.size)),
-    );
-    relu_tanh_policy(Task::Grasp, &observation, hidden, seed)
 }

@@ -524,7 +524,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
             let mut lines = String::new();
             for (e, (_, _, actions)) in traces.iter().enumerate() {
                 for (t, a) in actions.iter().enumerate() {
-                    lines.push_str(&dex_runtime::testkit::action_line(e as u64, t, a));
+                    lines.push_str(&dex_runtime::action_trace::action_line(e as u64, t, a));
                 }
             }
             write_atomic(path, lines.as_bytes())
