@@ -1,7 +1,8 @@
 """`dexflash` (dexstack/python/dexstack/flash.py, the `dexflash` entry point in .venv/bin) against a
 `hil-sim bus` with the controller node: a good file flashed and run, --info, --dry-run (no program
 data on the bus), --rollback, and the refusals (a corrupt file, a node nobody answers, a layout
-mismatch, a file the node refuses): non-zero exit, one line on stderr, the node's policy unchanged."""
+mismatch, a file the node refuses, a transfer cut by bus-off): non-zero exit, one line on stderr,
+the node's policy unchanged."""
 import subprocess
 import sys
 import threading
@@ -12,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from conftest import NODE, OPERATIONAL, PREOP, wait_heartbeat
-from test_sil_flash import program_id, runs_policy, sdo_node
+from test_sil_flash import flash_status, program_id, runs_policy, sdo_node
 
 BIN = Path(sys.executable).parent / "dexflash"
 SDO_REQUEST = 0x600 + NODE
@@ -216,3 +217,38 @@ def test_an_operational_node_is_brought_to_pre_operational_first(operational, po
     assert r.returncode == 0, r.stderr
     wait_heartbeat(bus, PREOP, 1.5)
     assert program_id(sdo_node(s)) == zlib.crc32(new)
+
+
+def test_a_transfer_cut_by_bus_off_fails_and_the_node_keeps_its_policy(sim, policies):
+    """The bus goes off (the bus's fault injection, every frame lost) as soon as dexflash opens
+    its block download: dexflash stops with a clear error and a non-zero exit, and once the bus
+    is back the node still runs its previous policy with nothing staged."""
+    s = sim("good")
+    bus = s.bus()
+    wait_heartbeat(bus, PREOP, 2.0)
+    watcher = s.bus()
+    cut = threading.Event()
+
+    def cut_at_the_block_download():
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not cut.is_set():
+            m = watcher.recv(timeout=0.05)
+            # Block download initiate: client command specifier 6 (0xC0 | flags).
+            if m is not None and m.arbitration_id == SDO_REQUEST and m.data[0] >> 5 == 6:
+                s.control("fault busoff 0")
+                cut.set()
+
+    t = threading.Thread(target=cut_at_the_block_download, daemon=True)
+    t.start()
+    r = dexflash(s, policies["other"], "--timeout", "0.5")
+    t.join(timeout=5)
+    assert cut.is_set(), "the download never started"
+    line = one_line_error(r)
+    assert r.returncode in (EXIT_TIMEOUT, EXIT_ABORT), line
+    s.control("fault clear")
+    wait_heartbeat(bus, PREOP, 3.0)
+    node = sdo_node(s)
+    assert program_id(node) == zlib.crc32(policies["good"].read_bytes())
+    staged, _, downloading = flash_status(node)
+    assert not staged and not downloading
+    assert runs_policy(bus)
