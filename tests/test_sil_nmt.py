@@ -35,9 +35,11 @@ def test_preoperational_heartbeat_period_and_safe_actions(sim):
 def test_nmt_start_stop_preop_cycle(operational):
     _, bus = operational
     nmt(bus, NMT_STOP)
-    wait_heartbeat(bus, STOPPED, 1.0)
-    status = collect(bus, 0.1, lambda m: m.arbitration_id == STATUS_ID)
-    assert STATUS_MESSAGE.decode(status[-1][1].data, decode_choices=False)["state"] == 3  # safe-stop
+    # wait_heartbeat also reads the status TPDO that follows the heartbeat.
+    got = wait_heartbeat(bus, STOPPED, 1.0)
+    status = [m for _, m in got if m.arbitration_id == STATUS_ID]
+    assert status, [hex(m.arbitration_id) for _, m in got][-10:]
+    assert STATUS_MESSAGE.decode(status[-1].data, decode_choices=False)["state"] == 3  # safe-stop
     nmt(bus, NMT_START)
     wait_heartbeat(bus, OPERATIONAL, 1.0)
     nmt(bus, NMT_PREOP)

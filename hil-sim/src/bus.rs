@@ -8,6 +8,14 @@
 //! the bus. Delayed frames wait in a time-ordered heap inside the bus thread. Bus time is the wall
 //! clock since start, or in lockstep mode a virtual clock set by [`Bus::set_time`] or `< time US >`.
 //!
+//! What a client writes in one system call reaches the bus thread as one event: a reader hands over
+//! every message of one read together ([`Event::Batch`]). A node flushes its answer to a frame in one
+//! write (the controller's action frames and the emergency after them, a heartbeat and the status
+//! TPDO after it), so no other client's event comes between those frames. In lockstep this keeps
+//! such an answer at one bus time: the plant advances the clock as soon as it has the last action
+//! frame (or the heartbeat it waits for), and the frames behind it in the same write must not be
+//! stamped with the next cycle's time.
+//!
 //! std threads rather than an async runtime: the client count is small (a handful), the per-frame
 //! work is tiny, and blocking sockets with `TCP_NODELAY` give the lowest latency without pulling in
 //! a runtime; the only shared state is behind one channel into the bus thread.
@@ -240,6 +248,9 @@ enum Event {
         command: Result<ControlCommand, String>,
     },
     Unknown,
+    /// Everything one read of a client's socket held, in order: handled as one event, so that the
+    /// frames a client writes at once get onto the bus with nothing of another client's between.
+    Batch(Vec<Event>),
     Shutdown,
 }
 
@@ -479,15 +490,18 @@ fn accept_loop(
 
 fn reader_loop(client: u64, mut stream: TcpStream, events: Sender<Event>) {
     let mut framer = Framer::default();
-    let mut buf = [0u8; 4096];
+    // Large enough that a node's write (a few hundred bytes per answer) comes in one read.
+    let mut buf = vec![0u8; 64 * 1024];
     loop {
         let n = match stream.read(&mut buf) {
             Ok(0) | Err(_) => break,
             Ok(n) => n,
         };
         framer.push(&buf[..n]);
+        // Every complete message of this read in one event (see the module's documentation).
+        let mut batch = Vec::new();
         while let Some(text) = framer.next_message() {
-            let event = match parse_request(&text) {
+            batch.push(match parse_request(&text) {
                 Request::Open(_) => Event::Open { client },
                 Request::RawMode => Event::Subscribe { client },
                 Request::Send(frame) => Event::Frame { client, frame },
@@ -496,10 +510,15 @@ fn reader_loop(client: u64, mut stream: TcpStream, events: Sender<Event>) {
                     command: parse_control(&words),
                 },
                 Request::Unknown => Event::Unknown,
-            };
-            if events.send(event).is_err() {
-                return;
-            }
+            });
+        }
+        let event = match batch.len() {
+            0 => continue,
+            1 => batch.swap_remove(0),
+            _ => Event::Batch(batch),
+        };
+        if events.send(event).is_err() {
+            return;
         }
     }
     let _ = stream.shutdown(std::net::Shutdown::Both);
@@ -643,6 +662,11 @@ impl BusThread {
                 }
             }
             Event::Unknown => self.stats.unknown_messages += 1,
+            Event::Batch(events) => {
+                for e in events {
+                    self.handle(e);
+                }
+            }
             Event::Shutdown => {}
         }
     }
