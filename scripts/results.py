@@ -85,7 +85,9 @@ SECTIONS = [
         "(protocol, curves and reading: [benchmarks.md](benchmarks.md#side-by-side-with-stable-baselines3-sessions-8-10-issue-14)). "
         "Reach at the issue's 60,000 transitions (session 9), Grasp at 200,000 (session 10); "
         "final success over 100 starts from 1,000,000. CPU times of sessions 9 and 10 come from "
-        "different CPUs.",
+        "different CPUs. SB3's rows are its actors run in Python, except the row marked "
+        "\"through the runtime\" (session 15): an SB3 actor exported to ONNX, imported as a policy "
+        "file and run by `trainer eval` like ours.",
     ),
 ]
 
