@@ -9,7 +9,9 @@ use common::scene;
 
 use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::env::{Demonstrator, Task};
-use dex_trainer::files::demos::{DemoError, DemoSet, RecordSettings, record, record_with};
+use dex_trainer::files::demos::{
+    DEMO_FORMAT_VERSION, DemoError, DemoSet, RecordSettings, record, record_with,
+};
 
 fn small(task: Task) -> DemoSet {
     let settings = RecordSettings {
@@ -72,33 +74,26 @@ fn bad_files_are_refused() {
     let e = DemoSet::from_bytes(&flipped, p).unwrap_err();
     assert!(e.to_string().contains("checksum"), "{e}");
     // Another version or layout (re-checksummed so only that differs).
-    for (what, edit) in [
-        ("version", r#""version":1"#.replace('1', "9")),
-        ("layout", r#""obs_dim":43"#.to_owned()),
+    let current = format!(r#""version":{DEMO_FORMAT_VERSION}"#);
+    for (what, from, to) in [
+        ("version", current.as_str(), r#""version":9"#),
+        ("layout", r#""obs_dim":44"#, r#""obs_dim":43"#),
     ] {
         let mut other = a.clone();
         let json = serde_json::to_string(&other.header).unwrap();
-        let json = json
-            .replace(
-                r#""version":1"#,
-                if what == "version" {
-                    &edit
-                } else {
-                    r#""version":1"#
-                },
-            )
-            .replace(
-                r#""obs_dim":44"#,
-                if what == "layout" {
-                    &edit
-                } else {
-                    r#""obs_dim":44"#
-                },
-            );
-        other.header = serde_json::from_str(&json).unwrap();
+        assert!(json.contains(from), "{json}");
+        other.header = serde_json::from_str(&json.replace(from, to)).unwrap();
         let e = DemoSet::from_bytes(&other.to_bytes(), p).unwrap_err();
         assert!(matches!(e, DemoError::Mismatch { .. }), "{what}: {e}");
     }
+    // A file of the older, hand-made format (magic DXDEMO01) is refused as such, not as damaged.
+    let mut old = bytes.clone();
+    old[..8].copy_from_slice(b"DXDEMO01");
+    let e = DemoSet::from_bytes(&old, p).unwrap_err();
+    assert!(
+        matches!(e, DemoError::Mismatch { .. }) && e.to_string().contains("format 01"),
+        "{e}"
+    );
     // Not a demo file at all.
     let e = DemoSet::from_bytes(b"DXPL....................................", p).unwrap_err();
     assert!(e.to_string().contains("magic"), "{e}");

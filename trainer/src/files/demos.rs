@@ -7,10 +7,14 @@
 //! cloned policy meets when its own small errors compound. The executed action is kept too, so the
 //! transitions are the environment's real `(s, a, r, s')` for an off-policy learner's demo buffer.
 //!
-//! File format (little-endian): magic `DXDEMO01`; a JSON header ([`DemoHeader`]: task, observation
-//! and action layout hash, sizes, how it was recorded); then per row `obs | label | executed | reward
-//! | next_obs | flags` as f32 (flags bit 0: last step of its episode); finally a CRC-32 (ISO-HDLC)
-//! of everything before it. Loading checks all of it and names what does not match.
+//! File format: magic `DXDEMO02`; a `postcard` body of the JSON header ([`DemoHeader`]: task,
+//! observation and action layout hash, sizes, how it was recorded; JSON because its settings keep
+//! optional fields that a non-self-describing encoding cannot skip) and the rows as one f32 array,
+//! per row `obs | label | executed | reward | next_obs | flags` (flags bit 0: last step of its
+//! episode); finally a CRC-32 (ISO-HDLC, little-endian) of everything before it. Loading checks
+//! all of it and names what does not match. Format 01 wrote the body by hand; postcard reads and
+//! writes f32 arrays about as fast (`examples/format_spike.rs`, docs/benchmarks.md), and 01 files
+//! are refused as written by an older version.
 
 use std::path::Path;
 
@@ -27,9 +31,16 @@ use crate::learn::Rng;
 // there), under its old path.
 pub use crate::env::seeds::DEMO_SEED;
 
-const MAGIC: &[u8; 8] = b"DXDEMO01";
+const MAGIC: &[u8; 8] = b"DXDEMO02";
 /// Version of the demo file format written by this build.
-pub const DEMO_FORMAT_VERSION: u32 = 1;
+pub const DEMO_FORMAT_VERSION: u32 = 2;
+
+/// Everything between the magic and the checksum.
+#[derive(Serialize, Deserialize)]
+struct FileBody<'a> {
+    header_json: std::borrow::Cow<'a, str>,
+    rows: std::borrow::Cow<'a, [f32]>,
+}
 const ROW: usize = OBS_DIM + ACT_DIM + ACT_DIM + 1 + OBS_DIM + 1;
 
 /// Why demonstrations could not be recorded, saved or loaded.
@@ -361,21 +372,24 @@ pub fn record_with(
 impl DemoSet {
     /// The file's bytes.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let header = serde_json::to_vec(&self.header).unwrap_or_default();
-        let mut buf = Vec::with_capacity(24 + header.len() + self.rows.len() * ROW * 4);
-        buf.extend_from_slice(MAGIC);
-        buf.extend_from_slice(&(header.len() as u64).to_le_bytes());
-        buf.extend_from_slice(&header);
-        buf.extend_from_slice(&(self.rows.len() as u64).to_le_bytes());
-        let mut put = |v: f32| buf.extend_from_slice(&v.to_le_bytes());
+        let mut rows = Vec::with_capacity(self.rows.len() * ROW);
         for r in &self.rows {
-            r.obs.iter().for_each(|&v| put(v));
-            r.label.iter().for_each(|&v| put(v));
-            r.executed.iter().for_each(|&v| put(v));
-            put(r.reward);
-            r.next_obs.iter().for_each(|&v| put(v));
-            put(if r.last { 1.0 } else { 0.0 });
+            rows.extend_from_slice(&r.obs);
+            rows.extend_from_slice(&r.label);
+            rows.extend_from_slice(&r.executed);
+            rows.push(r.reward);
+            rows.extend_from_slice(&r.next_obs);
+            rows.push(if r.last { 1.0 } else { 0.0 });
         }
+        let body = FileBody {
+            // The header holds numbers, strings and enums: serialising it cannot fail.
+            header_json: serde_json::to_string(&self.header)
+                .unwrap_or_default()
+                .into(),
+            rows: rows.into(),
+        };
+        // Into a Vec postcard cannot fail (no buffer to fill, no unsupported type).
+        let mut buf = postcard::to_extend(&body, MAGIC.to_vec()).unwrap_or_default();
         let crc = dex_policy::CRC32.checksum(&buf);
         buf.extend_from_slice(&crc.to_le_bytes());
         buf
@@ -401,32 +415,33 @@ impl DemoSet {
             path: path.to_owned(),
             why: why.to_owned(),
         };
-        if bytes.len() < 8 + 8 + 8 + 4 || &bytes[..8] != MAGIC {
+        let mismatch = |why: String| DemoError::Mismatch {
+            path: path.to_owned(),
+            why,
+        };
+        if bytes.len() < MAGIC.len() + 4 || !bytes.starts_with(b"DXDEMO") {
             return Err(corrupt(
-                "no demo-file magic (DXDEMO01) or shorter than a header",
+                "no demo-file magic (DXDEMO02) or shorter than a header",
             ));
+        }
+        if &bytes[..MAGIC.len()] != MAGIC {
+            return Err(mismatch(format!(
+                "format {} (this build reads {DEMO_FORMAT_VERSION:02}): record it again",
+                String::from_utf8_lossy(&bytes[6..MAGIC.len()])
+            )));
         }
         let (body, tail) = bytes.split_at(bytes.len() - 4);
         let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
         if dex_policy::CRC32.checksum(body) != stored {
             return Err(corrupt("checksum mismatch (truncated or damaged)"));
         }
-        let u64_at = |at: usize| -> Result<u64, DemoError> {
-            body.get(at..at + 8)
-                .and_then(|b| b.try_into().ok())
-                .map(u64::from_le_bytes)
-                .ok_or_else(|| corrupt("ends early"))
-        };
-        let hlen = usize::try_from(u64_at(8)?).map_err(|_| corrupt("header length"))?;
-        let header_bytes = body
-            .get(16..16usize.saturating_add(hlen))
-            .ok_or_else(|| corrupt("header ends early"))?;
-        let header: DemoHeader =
-            serde_json::from_slice(header_bytes).map_err(|e| corrupt(&format!("header: {e}")))?;
-        let mismatch = |why: String| DemoError::Mismatch {
-            path: path.to_owned(),
-            why,
-        };
+        let (file, rest) = postcard::take_from_bytes::<FileBody<'_>>(&body[MAGIC.len()..])
+            .map_err(|e| corrupt(&format!("body: {e}")))?;
+        if !rest.is_empty() {
+            return Err(corrupt("trailing bytes after the rows"));
+        }
+        let header: DemoHeader = serde_json::from_str(&file.header_json)
+            .map_err(|e| corrupt(&format!("header: {e}")))?;
         if header.version != DEMO_FORMAT_VERSION {
             return Err(mismatch(format!(
                 "format version {} (this build reads {DEMO_FORMAT_VERSION})",
@@ -445,16 +460,12 @@ impl DemoSet {
                 interface_layout_hash()
             )));
         }
-        let at = 16 + hlen;
-        let n = usize::try_from(u64_at(at)?).map_err(|_| corrupt("row count"))?;
-        let data = &body[at + 8..];
-        if Some(data.len()) != n.checked_mul(ROW * 4) {
-            return Err(corrupt("row data length does not match the row count"));
+        if file.rows.len() % ROW != 0 {
+            return Err(corrupt("row data is not a whole number of rows"));
         }
+        let n = file.rows.len() / ROW;
+        let mut vals = file.rows.iter().copied();
         let mut rows = Vec::with_capacity(n);
-        let mut vals = data
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
         let mut take = || vals.next().unwrap_or(f32::NAN);
         for _ in 0..n {
             let obs = std::array::from_fn(|_| take());
