@@ -179,13 +179,6 @@ pub fn equalise_policy_file(
     if calibration.is_empty() || (n != dex_runtime::interface::OBS_DIM && !featured) {
         return Err(ExportError::NoCalibration(n));
     }
-    // What the first layer's inputs are: the observation, or the observation followed by the task
-    // features the controller computes from it (`dex_runtime::features`).
-    let mut buf = [0.0f32; dex_runtime::features::INPUT_MAX];
-    let inputs: Vec<Vec<f32>> = calibration
-        .iter()
-        .map(|o| dex_runtime::features::policy_input(o, n, &mut buf).to_vec())
-        .collect();
     let get = |start: usize, len: usize| -> Result<Vec<f64>, ExportError> {
         values
             .get(start..start + len)
@@ -227,6 +220,13 @@ pub fn equalise_policy_file(
     // EXPORT_OBS_CLIP clips nothing the learner saw).
     let fold = view.body().obs_clip >= EXPORT_OBS_CLIP;
     if let Some(first) = layers.first_mut().filter(|_| fold) {
+        // What the first layer's inputs are: the observation, or the observation followed by the
+        // task features the controller computes from it (`dex_runtime::features`).
+        let mut buf = [0.0f32; dex_runtime::features::INPUT_MAX];
+        let inputs: Vec<Vec<f32>> = calibration
+            .iter()
+            .map(|o| dex_runtime::features::policy_input(o, n, &mut buf).to_vec())
+            .collect();
         for i in 0..n.min(first.inputs) {
             let (lo, hi) = inputs.iter().fold((f64::MAX, f64::MIN), |(lo, hi), o| {
                 let z = (f64::from(o[i]) - mean[i]) / scale[i];
