@@ -7,32 +7,21 @@
 //! (defaults: `controller_step` of firmware/budget.txt, 168 MHz, one instruction per cycle: a
 //! lower bound of the compute time on a Cortex-M4F, whose loads and multiplies can take more).
 
+use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
 use dex_hil_sim::wire::{Offer, bits_ns, schedule, unstuffed_bits, worst_case_bits};
 use dex_runtime::ControllerConfig;
 use dex_runtime::can::messages::{ACTION_FRAMES, OBS_FRAMES, rpdo_cob_id, tpdo_cob_id};
 
-fn main() {
-    let budget = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../firmware/budget.txt"
-    ))
-    .unwrap_or_default();
-    let from_budget = |key: &str| {
-        budget
-            .lines()
-            .find_map(|l| l.strip_prefix(key)?.trim().parse::<u64>().ok())
-    };
+fn main() -> Result<(), dex_hil_sim::compute::ComputeError> {
     let args: Vec<String> = std::env::args().collect();
-    let instructions = args
-        .get(1)
-        .and_then(|a| a.parse().ok())
-        .or_else(|| from_budget("controller_step "))
-        .unwrap_or(608_842);
-    let hz: u64 = args
-        .get(2)
-        .and_then(|a| a.parse().ok())
-        .unwrap_or(168_000_000);
-    let compute_ns = instructions * 1_000_000_000 / hz;
+    let compute = StepCompute::new(
+        args.get(1).and_then(|a| a.parse().ok()),
+        args.get(2)
+            .and_then(|a| a.parse().ok())
+            .unwrap_or(DEFAULT_CPU_HZ),
+    )?;
+    let (instructions, hz) = (compute.instructions, compute.cpu_hz);
+    let compute_ns = compute.ns();
     println!(
         "controller: {instructions} instructions per step at {} MHz = {:.2} ms",
         hz / 1_000_000,
@@ -87,4 +76,5 @@ fn main() {
             );
         }
     }
+    Ok(())
 }
