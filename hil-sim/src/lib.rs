@@ -14,6 +14,8 @@
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
 //! - [`wire`]: classic CAN frames' time on the wire (bit stuffing) and arbitration, the model of the
 //!   wire-time figures.
+//! - [`wire_fd`]: CAN FD frames' time on the wire (two bit rates), a model for budgets; the bus
+//!   carries classic frames only.
 //! - [`compute`]: the controller's compute per step on the Cortex-M4F (`firmware/budget.txt`), the
 //!   time a lockstep node's answer takes in bus time.
 //! - [`latency`]: observation to action in bus time from a timed bus's frame trace: wire time,
@@ -38,3 +40,4 @@ pub mod plant;
 pub mod port;
 pub mod protocol;
 pub mod wire;
+pub mod wire_fd;
