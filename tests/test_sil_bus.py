@@ -114,3 +114,30 @@ def test_slow_client_loses_frames_alone(sim):
     stats = s.stats()
     drops = dict(x.split(":") for x in stats["client_drops"].split(",") if ":" in x)
     assert len(drops) == 1 and int(next(iter(drops.values()))) > 0
+
+
+def test_frames_written_together_leave_lowest_identifier_first_a_frame_apart(sim):
+    """`hil-sim bus` puts frames on a classic 500 kbit/s wire by default: frames offered together
+    go lowest identifier first, each stamped at its end of frame, at least its bits over the bit
+    rate after the one before (an 8-byte frame: 111 bits at least, 222 us); `--bitrate 0` is the
+    untimed bus, in arrival order."""
+    for extra, timed in (([], True), (["--bitrate", "0"], False)):
+        s = sim(None, extra=extra)
+        rx = s.bus()
+        s.settle(rx)
+        raw = s.raw()
+        raw.sendall(b"< open vcan0 >< rawmode >")
+        time.sleep(0.1)
+        raw.sendall(b"".join(f"< send {i:03X} 8 {i & 0xFF:X} 1 2 3 4 5 6 7 >".encode() for i in (0x300, 0x100, 0x200)))
+        got = [m for _, m in collect(rx, 1.0) if m.arbitration_id in (0x100, 0x200, 0x300)]
+        assert len(got) == 3, got
+        ids = [m.arbitration_id for m in got]
+        stamps = [m.timestamp for m in got]
+        if timed:
+            assert ids == [0x100, 0x200, 0x300]
+            assert all(b - a >= 111 * 2e-6 - 1e-6 for a, b in zip(stamps, stamps[1:])), stamps
+        else:
+            assert ids == [0x300, 0x100, 0x200]
+            assert stamps[-1] - stamps[0] < 0.001, stamps  # one event, no wire time
+        s.control("quit")
+        s.proc.wait(timeout=3)

@@ -377,6 +377,7 @@ impl Bus {
             stats: BusStats::default(),
             arbiter: cfg.wire.map(Arbiter::new),
             in_flight: VecDeque::new(),
+            event_ns: 0,
         };
         threads.push(
             std::thread::Builder::new()
@@ -619,6 +620,8 @@ struct BusThread {
     arbiter: Option<Arbiter<Carried>>,
     /// Real time: frames committed to the wire whose end of frame the wall clock has not reached.
     in_flight: VecDeque<OnWire<Carried>>,
+    /// Real time: when the event being handled arrived (ns), the offer time of all its frames.
+    event_ns: u64,
 }
 
 impl BusThread {
@@ -657,7 +660,7 @@ impl BusThread {
         let at_ns = if virtual_clock {
             at_us.max(txtime).saturating_mul(1000)
         } else {
-            self.start.elapsed().as_nanos() as u64
+            self.event_ns
         };
         if arbiter.waiting() > 0 || arbiter.idle_from_ns() > at_ns {
             self.stats.wire_waited += 1;
@@ -691,6 +694,7 @@ impl BusThread {
 
     fn run(mut self, rx: Receiver<Event>) {
         loop {
+            self.event_ns = self.now_ns();
             self.release_due();
             let wait = self.next_wait();
             let event = match rx.recv_timeout(wait) {
@@ -706,6 +710,8 @@ impl BusThread {
             if matches!(event, Event::Shutdown) {
                 break;
             }
+            // One offer time for everything this event carries (one write of a client).
+            self.event_ns = self.now_ns();
             self.handle(event);
             // After the whole event: the frames one write offered are arbitrated together.
             self.pump();

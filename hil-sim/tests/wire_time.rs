@@ -217,3 +217,19 @@ fn timed_lockstep_keeps_the_actions_and_stamps_a_frame_apart() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn real_time_frames_written_together_go_lowest_identifier_first() {
+    let (bus, mut tx, mut rx) = timed_bus(BusClock::Wall);
+    for id in [0x300, 0x100, 0x200] {
+        tx.queue(&frame(id, 0x5A));
+    }
+    tx.flush().unwrap();
+    let got = receive(&mut rx, 3);
+    let ids: Vec<_> = got.iter().map(|(f, _)| f.standard_id().unwrap()).collect();
+    assert_eq!(ids, [0x100, 0x200, 0x300], "one write: one offer time");
+    for w in got.windows(2) {
+        assert_eq!(w[1].1 - w[0].1, frame_us(&w[1].0), "back to back");
+    }
+    bus.shutdown();
+}
