@@ -24,6 +24,7 @@ use crate::env::{Demonstrator, EnvError, Scene, StartStates};
 use crate::evaluate::{EvalError, EvalSettings, PolicyEval, evaluate_policy_file};
 use crate::files::demos::DemoError;
 use crate::files::export::{ExportError, ExportInfo, ObsNormalisation, export_actor};
+use crate::learn::distributed::membership::RankChange;
 use crate::learn::distributed::server::Server;
 use crate::learn::distributed::worker::WorkerRank;
 use crate::learn::distributed::{DistributedConfig, DistributedError, ExchangeStats, Transport};
