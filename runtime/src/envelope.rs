@@ -17,7 +17,7 @@
 //! bricks and would trust the plant's own kinematics.
 //!
 //! How `s` is found (bounded work: at most 2 x ([`BISECTION_STEPS`] + 1) + 1 forward kinematics,
-//! each without trigonometry; six `libm::sincosf` per cycle):
+//! each without trigonometry; one f32 sine and cosine per joint and per evaluation):
 //!
 //! 1. Acceleration. The change of joint `j` from its measured velocity `v_j` to `s * u_j` must stay
 //!    within `d_j = max_accel_j * period`; the admissible `s` form an interval, and `s_acc` is its
@@ -37,9 +37,9 @@
 //!    ([`EnvelopeStats::accel_overridden`]).
 //!
 //! The kinematics of step 2: every candidate moves the angles along a line from `q`, so the
-//! joints' sines and cosines are taken once per cycle ([`JointTrig::of`]: one `sincosf` per
-//! joint), each candidate's by angle addition with its offset's sine and cosine from a short
-//! polynomial ([`JointTrig::shifted`]), and the pinch site from those by 3x3 matrices
+//! joints' sines and cosines are taken once per cycle ([`JointTrig::of`]), each candidate's by
+//! angle addition with its offset's sine and cosine ([`JointTrig::shifted`]; every sine and cosine
+//! by [`crate::kinematics::sin_cos`], f32 arithmetic only), and the pinch site from those by 3x3 matrices
 //! ([`pinch_position_trig`]). Nothing is linearised: every candidate's pinch site is its forward
 //! kinematics, exact up to f32 rounding (within 4e-7 m of an f64 evaluation of the same chain,
 //! `runtime/tests/kinematics.rs`), so the guarantees hold as stated for every chosen `s`. The

@@ -25,7 +25,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use crate::jaco_kinematics::{CHAIN, SITE_POS, SITE_QUAT};
 
 /// Largest `|x|` (radians) whose sine and cosine [`sin_cos`] computes in f32; larger or
-/// non-finite arguments go through `libm::sincosf`.
+/// non-finite arguments go through `libm::sinf` and `libm::cosf`.
 pub const SIN_COS_RANGE: f32 = 256.0;
 
 /// Number of arm joints in the chain.
@@ -129,11 +129,12 @@ const PIO2: [f32; 3] = [1.570_312_5, 4.837_513e-4, 7.549_79e-8];
 /// degree 9 (sine) and 10 (cosine) on `|r| <= pi/4` (Horner form in `r^2`; truncation below
 /// 2e-9), swapped and negated by the quadrant of `k`. Within 1.5e-7 of the exact values for
 /// `|x| <=` [`SIN_COS_RANGE`] (`runtime/tests/kinematics.rs`); beyond it, and for NaN or
-/// infinities, `libm::sincosf`. The `libm` functions compute in f64, which the Cortex-M4F's
+/// infinities, `libm::sinf` and `libm::cosf`. The `libm` functions compute in f64, which the Cortex-M4F's
 /// single-precision FPU emulates in software; this costs a few dozen instructions.
 pub fn sin_cos(x: f32) -> (f32, f32) {
     if x.is_nan() || libm::fabsf(x) > SIN_COS_RANGE {
-        return libm::sincosf(x);
+        // `sinf` and `cosf`, not `sincosf`: the task features link those two already.
+        return (libm::sinf(x), libm::cosf(x));
     }
     let half = if x >= 0.0 { 0.5 } else { -0.5 };
     let k = (x * core::f32::consts::FRAC_2_PI + half) as i32;
