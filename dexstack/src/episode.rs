@@ -145,12 +145,14 @@ pub struct Outcome {
     pub predicates: Predicates,
 }
 
-/// How an episode started: `original`, `in-hand` or `demonstration` (with the steps `k` of `n`).
+/// How an episode started: `original`, `in-hand`, `demonstration` (with the steps `k` of `n`) or
+/// `revisit` (a fine-tune's revisited start).
 pub fn start_kind_name(kind: StartKind) -> &'static str {
     match kind {
         StartKind::Original => "original",
         StartKind::InHand => "in-hand",
         StartKind::Demonstration { .. } => "demonstration",
+        StartKind::Revisit { .. } => "revisit",
     }
 }
 

@@ -16,7 +16,7 @@ use dex_runtime::envelope::{Envelope, EnvelopeConfig};
 use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 
-use crate::{EnvConfig, EnvError, JacoEnv, Scene};
+use crate::{EnvConfig, EnvError, JacoEnv, MarkovDemonstrator, Scene};
 
 // Each episode's start seed (shared by `trainer eval`, `hil-sim run` and dexstack) and the
 // held-out range, defined in `crate::seeds`, under their old paths here.
@@ -256,16 +256,69 @@ pub fn episode_outcomes(
     }
     let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = decode_jaco_policy(aligned.as_bytes())?;
+    outcomes_in_order(
+        settings,
+        || {
+            Ok((
+                Mlp::<EVAL_WIDTH>::new(&view)?,
+                JacoEnv::new(scene, settings.env),
+                settings.envelope.then(eval_envelope),
+            ))
+        },
+        |(mlp, env, envelope), seed| {
+            run_episode(mlp, env, seed, settings.can_quantisation, envelope.as_mut())
+        },
+        on_episode,
+    )
+}
+
+/// (return, success) of the task's Markov demonstrator (the teacher of the clones and of teacher
+/// labels; it reads the simulation's state, so neither the CAN quantisation nor the envelope
+/// applies) on the starts of [`episode_outcomes`] with the same settings, in episode order.
+pub fn teacher_outcomes(
+    scene: &Scene,
+    settings: &EvalSettings,
+    on_episode: &(dyn Fn() + Sync),
+) -> Result<Vec<(f64, bool)>, EvalError> {
+    if settings.episodes == 0 {
+        return Err(EvalError::NoEpisodes);
+    }
+    let teacher = MarkovDemonstrator::new(settings.env.task);
+    outcomes_in_order(
+        settings,
+        || Ok(JacoEnv::new(scene, settings.env)),
+        |env, seed| {
+            env.reset(seed)?;
+            let mut total = 0.0f64;
+            loop {
+                let out = env.step(&teacher.act(env))?;
+                total += f64::from(out.reward);
+                if out.done {
+                    return Ok((total, out.success));
+                }
+            }
+        },
+        on_episode,
+    )
+}
+
+/// Runs episode `i` of `settings.episodes` (from [`episode_seed`]`(settings.seed, i)`) with `run`
+/// on `settings.threads` threads, each with its own state from `init`; the outcomes in episode
+/// order.
+fn outcomes_in_order<S>(
+    settings: &EvalSettings,
+    init: impl Fn() -> Result<S, EvalError> + Sync,
+    run: impl Fn(&mut S, u64) -> Result<(f64, bool), EvalError> + Sync,
+    on_episode: &(dyn Fn() + Sync),
+) -> Result<Vec<(f64, bool)>, EvalError> {
     let next = AtomicU32::new(0);
-    let threads = settings.threads.clamp(1, settings.episodes as usize);
+    let threads = settings.threads.clamp(1, settings.episodes.max(1) as usize);
     type Outcomes = Vec<(u32, (f64, bool))>;
     let results: Vec<Result<Outcomes, EvalError>> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
             .map(|_| {
                 s.spawn(|| {
-                    let mut mlp = Mlp::<EVAL_WIDTH>::new(&view)?;
-                    let mut env = JacoEnv::new(scene, settings.env);
-                    let mut envelope = settings.envelope.then(eval_envelope);
+                    let mut state = init()?;
                     let mut out = Vec::new();
                     loop {
                         let i = next.fetch_add(1, Ordering::Relaxed);
@@ -273,16 +326,7 @@ pub fn episode_outcomes(
                             return Ok(out);
                         }
                         let seed = episode_seed(settings.seed, u64::from(i));
-                        out.push((
-                            i,
-                            run_episode(
-                                &mut mlp,
-                                &mut env,
-                                seed,
-                                settings.can_quantisation,
-                                envelope.as_mut(),
-                            )?,
-                        ));
+                        out.push((i, run(&mut state, seed)?));
                         on_episode();
                     }
                 })

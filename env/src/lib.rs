@@ -42,5 +42,5 @@ pub use markov_demo::{MarkovDemonstrator, MarkovPhase};
 pub use observation::Observation;
 pub use rewards::{Predicates, Reward, RewardState};
 pub use scene::{AssetPaths, Scene};
-pub use start_states::{Demonstration, Handover, StartKind, StartScheme, StartStates};
+pub use start_states::{Demonstration, Handover, Revisits, StartKind, StartScheme, StartStates};
 pub use tasks::Task;

@@ -14,6 +14,7 @@
 //! | [`DEMO_SEED`] | 5,000,000 | recorded demonstrations (`trainer demos`, `trainer imitate`) |
 //! | [`HELDOUT_SEED`] | 7,000,000 | the held-out observations of the int8-versus-f32 comparison |
 //! | [`CALIBRATION_SEED`] | 8,000,000 | the int8 exporter's calibration episodes |
+//! | [`SCREEN_SEED`] | 9,000,000 | the starts a fine-tune screens its starting policy on; the failed ones are revisited in training (`start_states`) |
 //! | [`POOL_SEED_BASE`] | 2^40 | the fixed pool of demonstrations that training starts along demonstrations draw from (`start_states`) |
 
 pub use dex_runtime::seeds::episode_seed;
@@ -48,6 +49,12 @@ pub const HELDOUT_SEED: u64 = 7_000_000;
 /// starts from `episode_seed(CALIBRATION_SEED, i)`.
 pub const CALIBRATION_SEED: u64 = 8_000_000;
 
+/// Start seed of the screening of a fine-tune's starting policy (`start.failed_starts`): episode
+/// `i` of the screen starts from `episode_seed(SCREEN_SEED, i)`, and the starts it fails become
+/// training starts ([`crate::start_states::StartStates::with_revisits`]). Training may use these
+/// starts, so no reported figure is drawn from them.
+pub const SCREEN_SEED: u64 = 9_000_000;
+
 /// Trajectory `i` of a demonstration pool (`start.demonstrations`) starts from the original start
 /// of seed `POOL_SEED_BASE + i` ([`crate::start_states`]): far above every range above and the
 /// learner's episode seeds.
@@ -67,6 +74,7 @@ mod tests {
             DEMO_SEED,
             HELDOUT_SEED,
             CALIBRATION_SEED,
+            SCREEN_SEED,
             POOL_SEED_BASE,
         ];
         for (i, a) in all.iter().enumerate() {

@@ -8,7 +8,9 @@
 mod common;
 use common::{bits, scene};
 
-use dex_env::{Demonstrator, EnvConfig, JacoEnv, StartKind, StartScheme, StartStates, Task};
+use dex_env::{
+    Demonstrator, EnvConfig, JacoEnv, Revisits, StartKind, StartScheme, StartStates, Task,
+};
 use dex_runtime::interface::ACT_DIM;
 
 /// Arm still, fingers closing: what a policy that keeps its grip would command.
@@ -241,5 +243,72 @@ fn demonstration_states_with_the_brick_in_the_air_stay_held_after_a_hand_over() 
         handed.begin_episode();
         assert_eq!(handed.steps_taken(), 0);
         assert_held(&mut handed, 10, &format!("demonstration step {k}"));
+    }
+}
+
+#[test]
+fn revisits_hand_over_the_listed_original_starts_at_their_rate() {
+    let scene = scene();
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(Task::Stack));
+    let listed = [11u64, 22, 33];
+    let revisits = |probability| Revisits {
+        seeds: listed.to_vec(),
+        probability,
+    };
+    let mut always = StartStates::scripted(StartScheme::Original, Task::Stack)
+        .unwrap()
+        .with_revisits(revisits(1.0))
+        .unwrap();
+    let mut seen = std::collections::HashSet::new();
+    for seed in 100..130 {
+        let h = always.reset(&mut env, seed).unwrap();
+        let StartKind::Revisit { seed: s } = h.kind else {
+            panic!("seed {seed}: {:?} is not a revisit", h.kind);
+        };
+        assert!(listed.contains(&s));
+        seen.insert(s);
+        assert_eq!(env.steps_taken(), 0);
+        // The revisited seed's original start, bit for bit.
+        assert_eq!(bits(&h.observation), bits(&env.reset(s).unwrap()));
+    }
+    assert_eq!(seen.len(), listed.len(), "every listed start is picked");
+    // A quarter of the episodes, decided by the episode seed alone; the others keep the scheme's
+    // start (the original start of their own seed).
+    let mut quarter = StartStates::scripted(StartScheme::Original, Task::Stack)
+        .unwrap()
+        .with_revisits(revisits(0.25))
+        .unwrap();
+    let n = (0..200)
+        .filter(|&seed| {
+            let h = quarter.reset(&mut env, seed).unwrap();
+            assert_eq!(h.kind, quarter.reset(&mut env, seed).unwrap().kind);
+            match h.kind {
+                StartKind::Revisit { .. } => true,
+                StartKind::Original => {
+                    assert_eq!(bits(&h.observation), bits(&env.reset(seed).unwrap()));
+                    false
+                }
+                k => panic!("{k:?}"),
+            }
+        })
+        .count();
+    assert!((30..=70).contains(&n), "{n}/200 revisits at p = 0.25");
+    // No list: no revisit, whatever the probability.
+    let mut none = StartStates::scripted(StartScheme::Original, Task::Stack)
+        .unwrap()
+        .with_revisits(Revisits {
+            seeds: Vec::new(),
+            probability: 1.0,
+        })
+        .unwrap();
+    assert_eq!(none.reset(&mut env, 5).unwrap().kind, StartKind::Original);
+    for bad in [-0.1, 1.5, f64::NAN] {
+        assert!(
+            StartStates::scripted(StartScheme::Original, Task::Stack)
+                .unwrap()
+                .with_revisits(revisits(bad))
+                .is_err(),
+            "probability {bad}"
+        );
     }
 }

@@ -3,6 +3,9 @@
 //! guarantees checked with that reference kinematics, on many seeded states and commands.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
+mod common;
+use common::Rng;
+
 use dex_runtime::envelope::{BISECTION_STEPS, Envelope, EnvelopeConfig, status, write_arm_state};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 use dex_runtime::kinematics::{ARM_JOINTS, pinch_position};
@@ -127,24 +130,6 @@ fn old_apply(
     let out =
         core::array::from_fn(|j| (s * cmd[j]).clamp(ACTION_JOINTS[j].min, ACTION_JOINTS[j].max));
     (s, limits, out)
-}
-
-/// A seeded generator (splitmix64).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [lo, hi).
-    fn uniform(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * ((self.next() >> 40) as f32 / (1u64 << 24) as f32)
-    }
 }
 
 /// The start-state IK's nominal pose: hand above the workspace, pointing down.

@@ -3,6 +3,9 @@
 //! random angle sets and offsets.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
+mod common;
+use common::Rng;
+
 use dex_runtime::jaco_kinematics::{CHAIN, SITE_POS};
 use dex_runtime::kinematics::{
     ARM_JOINTS, JointTrig, SIN_COS_RANGE, pinch_pose, pinch_position_trig, sin_cos,
@@ -49,24 +52,6 @@ fn distance(a: &[f32], b: &[f64; 3]) -> f64 {
         .map(|i| (f64::from(a[i]) - b[i]).powi(2))
         .sum::<f64>()
         .sqrt()
-}
-
-/// A seeded generator of uniform f32 values (splitmix64).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [-r, r].
-    fn angles(&mut self, r: f32) -> [f32; ARM_JOINTS] {
-        core::array::from_fn(|_| ((self.next() >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * r)
-    }
 }
 
 /// Worst distances over 20,000 seeded angle sets in [-2 pi, 2 pi]: the envelope's chain against

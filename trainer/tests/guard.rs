@@ -17,21 +17,7 @@ use dex_trainer::pipeline::train_run::{
 use dex_trainer::pipeline::train_settings::{SettingsError, TaskArg, TrainSettings};
 
 mod common;
-use common::fresh_path;
-
-const FIXTURE: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/tests/fixtures/reach_seed0.dxpl"
-);
-
-/// Hidden sizes of the Reach fixture's network.
-fn fixture_hidden() -> Vec<usize> {
-    let bytes = std::fs::read(FIXTURE).unwrap();
-    let aligned = dex_runtime::aligned::aligned_copy(&bytes);
-    let view = dex_policy::PolicyView::decode(aligned.as_bytes()).unwrap();
-    let outs: Vec<usize> = view.layers().map(|l| l.outputs).collect();
-    outs[..outs.len() - 1].to_vec()
-}
+use common::{REACH_FIXTURE as FIXTURE, fresh_path, reach_fixture_hidden as fixture_hidden};
 
 /// A short Reach run from the fixture with a guard of 12 starts.
 fn settings(out: &Path) -> TrainSettings {

@@ -61,6 +61,26 @@ pub enum SettingsError {
          it needs init_policy (--init-policy) or the clone stage ([clone], --clone)"
     )]
     GuardWithoutInit,
+    /// `start.failed_starts` without a starting policy to screen.
+    #[error(
+        "start.failed_starts screens the policy a run starts from: it needs init_policy \
+         (--init-policy) or the clone stage ([clone], --clone)"
+    )]
+    FailedStartsWithoutInit,
+    /// `start.failed_starts` with another scheme than the original starts, or out of range.
+    #[error(
+        "start.failed_starts needs start.scheme = \"original\" (full-length episodes from the \
+         failed starts), at most {max} starts and a failed_start_probability in [0, 1]; got \
+         {starts} starts, probability {probability}"
+    )]
+    FailedStarts {
+        /// The number of screening starts given.
+        starts: u32,
+        /// The probability given.
+        probability: f64,
+        /// The most screening starts.
+        max: u32,
+    },
     /// More guard starts than the selection range holds apart from the other ranges.
     #[error("guard_episodes {episodes} is above the limit of {MAX_GUARD_EPISODES}")]
     GuardTooLong {
@@ -252,6 +272,15 @@ pub struct StartSettings {
     /// scripted demonstrator.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub demonstrator_policy: Option<PathBuf>,
+    /// Failed-start revisits of a fine-tune (0: off): the starting policy (`init_policy` or the
+    /// clone stage's file) runs on this many screening starts
+    /// ([`SCREEN_SEED`](crate::env::seeds::SCREEN_SEED)) before training, and training episodes
+    /// start from the ones it failed with probability `failed_start_probability`
+    /// (`dex_env::start_states`, revisits; the list is kept in the seed folder's
+    /// `failed_starts.json`).
+    pub failed_starts: u32,
+    /// Probability that a training episode revisits a failed start (with `failed_starts`).
+    pub failed_start_probability: f64,
 }
 
 impl Default for StartSettings {
@@ -262,6 +291,8 @@ impl Default for StartSettings {
             train_episode_steps: crate::env::start_states::DEMO_TRAIN_EPISODE_STEPS,
             demonstrations: 0,
             demonstrator_policy: None,
+            failed_starts: 0,
+            failed_start_probability: 0.5,
         }
     }
 }
@@ -428,6 +459,10 @@ pub const FINETUNE_GUARD_EPISODES: u32 = 500;
 
 /// The most guard starts (they are drawn from the selection range, 1,000,000 seeds wide).
 pub const MAX_GUARD_EPISODES: u32 = 100_000;
+
+/// The most screening starts of `start.failed_starts` (the starting policy runs every one of them
+/// before training: 100,000 Stack episodes are about 15 million environment steps).
+pub const MAX_SCREEN_STARTS: u32 = 100_000;
 
 /// The transition budget of the learner from demonstrations on Grasp, StackInHand and Stack: the
 /// Grasp ablation's `no-norm` row, 47/50 and 46/50 for seeds 0 and 1 (docs/experiments.md).
@@ -732,6 +767,22 @@ impl TrainSettings {
         }
         if self.guard_episodes > 0 && self.init_policy.is_none() && self.clone.is_none() {
             return Err(SettingsError::GuardWithoutInit);
+        }
+        let f = &self.start;
+        if f.failed_starts > 0 {
+            if self.init_policy.is_none() && self.clone.is_none() {
+                return Err(SettingsError::FailedStartsWithoutInit);
+            }
+            if f.scheme != StartArg::Original
+                || f.failed_starts > MAX_SCREEN_STARTS
+                || !(0.0..=1.0).contains(&f.failed_start_probability)
+            {
+                return Err(SettingsError::FailedStarts {
+                    starts: f.failed_starts,
+                    probability: f.failed_start_probability,
+                    max: MAX_SCREEN_STARTS,
+                });
+            }
         }
         if self.guard_episodes > MAX_GUARD_EPISODES {
             return Err(SettingsError::GuardTooLong {

@@ -44,3 +44,19 @@ pub fn fresh_path(group: &str, name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&p);
     p
 }
+
+/// The Reach policy fixture (`tests/fixtures/reach_seed0.dxpl`, a trained Reach file): the starting
+/// policy of the fine-tune tests.
+pub const REACH_FIXTURE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/reach_seed0.dxpl"
+);
+
+/// Hidden sizes of [`REACH_FIXTURE`]'s network (an actor that imports it must have them).
+pub fn reach_fixture_hidden() -> Vec<usize> {
+    let bytes = std::fs::read(REACH_FIXTURE).expect("the Reach fixture");
+    let aligned = dex_runtime::aligned::aligned_copy(&bytes);
+    let view = dex_policy::PolicyView::decode(aligned.as_bytes()).expect("a policy file");
+    let outs: Vec<usize> = view.layers().map(|l| l.outputs).collect();
+    outs[..outs.len() - 1].to_vec()
+}

@@ -12,6 +12,7 @@
 //! trainer imitate --task grasp [--rounds 4] [--seeds 0,1,2] [--out runs/imitate]
 //! ```
 
+mod compare;
 mod demos;
 mod distributed;
 mod figure;
@@ -45,6 +46,8 @@ pub(crate) enum Command {
     Train(Box<TrainArgs>),
     /// Success rate of a policy file over random starts, with a 95% confidence interval.
     Eval(EvalArgs),
+    /// Policy files (and the teacher) on the same starts, with the McNemar test of every pair.
+    Compare(compare::CompareArgs),
     /// Plot a run folder's learning curves (PNG and SVG).
     Plot {
         /// Run folder (holds seed-*/eval.jsonl).
@@ -375,6 +378,7 @@ fn main() -> anyhow::Result<()> {
         Command::Train(args) => train::train(*args),
         Command::DistributedPointMass(args) => distributed::point_mass(&args),
         Command::Eval(args) => train::eval(&args),
+        Command::Compare(args) => compare::compare(&args),
         Command::Demos(args) => demos::demos(&args),
         Command::Clone(args) => demos::clone(&args),
         Command::Imitate(args) => imitate::imitate(&args),

@@ -309,6 +309,24 @@ impl Terminal {
                     policy.display()
                 );
             }
+            TrainEvent::ScreeningStarted { seed, starts } => println!(
+                "seed {seed}: screening the starting policy on {starts} starts (failed-start revisits)"
+            ),
+            TrainEvent::Screened {
+                seed,
+                screening,
+                probability,
+            } => println!(
+                "seed {seed}: the starting policy failed {} of {} screening starts; {:.0}% of the \
+                 training episodes revisit them",
+                screening.failed.len(),
+                screening.screened,
+                if screening.failed.is_empty() {
+                    0.0
+                } else {
+                    probability * 100.0
+                }
+            ),
             TrainEvent::RecordingDemos {
                 seed,
                 episodes,

@@ -71,6 +71,9 @@ fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
     if s.clone.is_some() {
         return Err(TrainRunError::CloneDistributed);
     }
+    if s.start.failed_starts > 0 {
+        return no("failed-start revisits (start.failed_starts: screen a clone in a local run)");
+    }
     Ok(())
 }
 

@@ -88,14 +88,7 @@ pub(super) fn run_guard(
         return Ok(Some(v));
     }
     let init_file = std::fs::read(init).map_err(io_at(init))?;
-    let settings = EvalSettings {
-        env: s.reward.env_config(s.task.task()),
-        episodes: s.guard_episodes,
-        seed: SELECTION_SEED,
-        threads: s.eval_threads,
-        can_quantisation: true,
-        envelope: false,
-    };
+    let settings = eval_settings(s, s.guard_episodes, SELECTION_SEED);
     let a = episode_outcomes(&chosen.draft(s, seed)?, scene, &settings, &|| {})?;
     let b = episode_outcomes(&init_file, scene, &settings, &|| {})?;
     let paired = Paired::of(&a, &b);

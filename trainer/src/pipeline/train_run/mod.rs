@@ -38,6 +38,7 @@ mod demonstrations;
 mod distributed;
 mod guard;
 mod run_log;
+mod screen;
 mod seed_export;
 mod seed_run;
 mod selection;
@@ -47,6 +48,7 @@ pub use distributed::ParameterServer;
 pub use guard::GuardVerdict;
 use guard::run_guard;
 use run_log::truncate_log;
+pub use screen::Screening;
 pub use seed_export::export_selected;
 use seed_run::train_seed;
 use selection::select_best;
@@ -226,6 +228,14 @@ pub enum TrainRunError {
         /// Why it does not parse.
         source: serde_json::Error,
     },
+    /// A seed's `failed_starts.json` is not a screening.
+    #[error("{} is damaged (delete it to screen the starting policy again)", path.display())]
+    DamagedScreening {
+        /// The file.
+        path: PathBuf,
+        /// Why it does not parse.
+        source: serde_json::Error,
+    },
     /// The learner failed.
     #[error(transparent)]
     Learn(#[from] LearnError),
@@ -256,6 +266,20 @@ fn io_at(path: &Path) -> impl FnOnce(std::io::Error) -> TrainRunError + '_ {
 
 /// Writes a run-folder file with [`crate::files::atomic_write::write_atomic`] (atomic and durable);
 /// a failure is a [`TrainRunError::Write`] of `path`.
+/// How the pipeline runs a policy file on `episodes` starts from `seed` (selection, guard,
+/// screening, final evaluation): the run's environment and evaluation threads, with the CAN
+/// quantisation the controller's bus applies, without the envelope.
+fn eval_settings(s: &TrainSettings, episodes: u32, seed: u64) -> EvalSettings {
+    EvalSettings {
+        env: s.reward.env_config(s.task.task()),
+        episodes,
+        seed,
+        threads: s.eval_threads,
+        can_quantisation: true,
+        envelope: false,
+    }
+}
+
 fn write_file(path: &Path, bytes: &[u8]) -> Result<(), TrainRunError> {
     crate::files::atomic_write::write_atomic(path, bytes).map_err(|source| TrainRunError::Write {
         path: path.to_path_buf(),
@@ -292,6 +316,24 @@ pub enum TrainEvent<'a> {
         seed: u64,
         /// The clone's policy file.
         policy: &'a Path,
+    },
+    /// A seed's starting policy is being run on the screening starts (`start.failed_starts`; none
+    /// kept in its folder).
+    ScreeningStarted {
+        /// The seed.
+        seed: u64,
+        /// Starts to run.
+        starts: u32,
+    },
+    /// A seed's starting policy was screened (`start.failed_starts`): training revisits the
+    /// starts it failed.
+    Screened {
+        /// The seed.
+        seed: u64,
+        /// What the screening found.
+        screening: &'a Screening,
+        /// Probability that a training episode revisits one of the failed starts.
+        probability: f64,
     },
     /// A seed's demonstrations are being recorded (none reusable in its folder).
     RecordingDemos {
@@ -481,8 +523,37 @@ impl TrainPlan {
 
     /// The plan of seed `seed`: this one, or with a clone stage the same settings with the
     /// seed's clone as `init_policy`, made first (or found made: the imitation learner resumes its
-    /// folder) in `OUT/clone/seed-S`.
+    /// folder) in `OUT/clone/seed-S`; with `start.failed_starts`, training also revisits the
+    /// starts its starting policy failed on the screening starts (`screen`).
     fn for_seed(
+        &self,
+        seed: u64,
+        scene: &Scene,
+        on_event: &mut dyn FnMut(TrainEvent<'_>),
+    ) -> Result<Cow<'_, TrainPlan>, TrainRunError> {
+        let plan = self.with_clone(seed, scene, on_event)?;
+        let s = &plan.settings;
+        let Some(init) = s.init_policy.as_ref().filter(|_| s.start.failed_starts > 0) else {
+            return Ok(plan);
+        };
+        let dir = s.out.join(format!("seed-{seed}"));
+        let screening = screen::screen(s, (seed, init), &dir, scene, on_event)?;
+        let probability = s.start.failed_start_probability;
+        on_event(TrainEvent::Screened {
+            seed,
+            screening: &screening,
+            probability,
+        });
+        let mut plan = plan.into_owned();
+        plan.starts = plan
+            .starts
+            .with_revisits(screening.revisits(probability))
+            .map_err(TrainRunError::StartStates)?;
+        Ok(Cow::Owned(plan))
+    }
+
+    /// [`TrainPlan::for_seed`]'s clone stage.
+    fn with_clone(
         &self,
         seed: u64,
         scene: &Scene,

@@ -120,14 +120,7 @@ fn final_evaluation(
     s: &TrainSettings,
     scene: &Scene,
 ) -> Result<PolicyEval, TrainRunError> {
-    let settings = EvalSettings {
-        env: s.reward.env_config(s.task.task()),
-        episodes: s.final_eval_episodes,
-        seed: crate::env::seeds::EVAL_SEED,
-        threads: s.eval_threads,
-        can_quantisation: true,
-        envelope: false,
-    };
+    let settings = eval_settings(s, s.final_eval_episodes, crate::env::seeds::EVAL_SEED);
     Ok(evaluate_policy_file(file, scene, &settings, &|| {})?)
 }
 

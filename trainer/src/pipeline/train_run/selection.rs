@@ -47,14 +47,7 @@ pub(super) fn select_best(
         eval_episodes: 0,
     };
     let draft = export_actor(net, &params, None, &info)?;
-    let settings = EvalSettings {
-        env: s.reward.env_config(s.task.task()),
-        episodes: s.select_best_episodes,
-        seed: SELECTION_SEED,
-        threads: s.eval_threads,
-        can_quantisation: true,
-        envelope: false,
-    };
+    let settings = eval_settings(s, s.select_best_episodes, SELECTION_SEED);
     let e = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
     let now = BestPolicy {
         transitions: info.transitions,

@@ -1,0 +1,183 @@
+//! `trainer compare`: policy files (and the task's Markov demonstrator, the clones' teacher) on the
+//! same starts, with the exact McNemar test of every pair (`dex_env::paired`): what a fine-tune
+//! added over its clone, measured start by start.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use clap::Args;
+use serde::Serialize;
+
+use dex_trainer::env::evaluate::{EvalSettings, episode_outcomes, teacher_outcomes};
+use dex_trainer::env::paired::Paired;
+use dex_trainer::env::seeds::EVAL_SEED;
+use dex_trainer::evaluate::{PolicyEval, wilson_interval};
+use dex_trainer::files::atomic_write::write_atomic;
+use dex_trainer::pipeline::train_settings::{RewardArg, TaskArg};
+
+use crate::train::{bar, load_scene};
+
+/// `trainer compare` flags.
+#[derive(Args, Debug)]
+pub struct CompareArgs {
+    /// Policy files, all of one task.
+    #[arg(required = true)]
+    policies: Vec<PathBuf>,
+    /// Also the task's Markov demonstrator (the teacher the clones learn from), on the same
+    /// starts (it reads the simulation's state: no CAN quantisation or envelope applies to it).
+    #[arg(long)]
+    teacher: bool,
+    /// Episodes (random starts), the same for every entry.
+    #[arg(long, default_value_t = 1000)]
+    episodes: u32,
+    /// Seed of the start states (3000000: the Table II starts).
+    #[arg(long, default_value_t = EVAL_SEED)]
+    seed: u64,
+    /// Worker threads.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Skip the CAN quantisation of the policies' observations and actions.
+    #[arg(long)]
+    no_can_quantisation: bool,
+    /// Also write the comparison as JSON (every entry's successes and interval, every pair's
+    /// discordant starts and p-value, the command, the wall time).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// One compared entry.
+#[derive(Debug, Serialize)]
+struct Entry {
+    name: String,
+    successes: u32,
+    episodes: u32,
+    interval_95: (f64, f64),
+}
+
+/// One compared pair (A against B).
+#[derive(Debug, Serialize)]
+struct Pair {
+    a: String,
+    b: String,
+    paired: Paired,
+}
+
+#[derive(Debug, Serialize)]
+struct Comparison {
+    command: String,
+    task: String,
+    start_seed: u64,
+    episodes: u32,
+    can_quantisation: bool,
+    entries: Vec<Entry>,
+    pairs: Vec<Pair>,
+    wall_s: f64,
+}
+
+/// Runs `trainer compare`.
+pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
+    let mut files = Vec::with_capacity(args.policies.len());
+    let mut task = None;
+    for path in &args.policies {
+        let bytes =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let aligned = dex_runtime::aligned::aligned_copy(&bytes);
+        let view = dex_policy::PolicyView::decode(aligned.as_bytes())
+            .with_context(|| format!("{} is not a valid policy file", path.display()))?;
+        let own = TaskArg::from_policy(view.body().task);
+        match task {
+            None => task = Some(own),
+            Some(t) if t != own => bail!(
+                "{} is a {own:?} policy, the first file a {t:?} one: compare policies of one task",
+                path.display()
+            ),
+            Some(_) => {}
+        }
+        files.push((path.display().to_string(), bytes));
+    }
+    let Some(task) = task else {
+        bail!("no policy file given");
+    };
+    let scene = load_scene()?;
+    let settings = EvalSettings {
+        env: RewardArg::TaskDefault.env_config(task.task()),
+        episodes: args.episodes,
+        seed: args.seed,
+        threads: args.threads,
+        can_quantisation: !args.no_can_quantisation,
+        envelope: false,
+    };
+    let started = Instant::now();
+    let entries = files.len() + usize::from(args.teacher);
+    let pb = bar(
+        u64::from(args.episodes) * entries as u64,
+        false,
+        "compare [{elapsed_precise}] [{bar:30}] {pos}/{len} episodes",
+    );
+    let mut outcomes = Vec::with_capacity(entries);
+    if args.teacher {
+        let o = teacher_outcomes(&scene, &settings, &|| pb.inc(1))?;
+        outcomes.push(("teacher (Markov demonstrator)".to_string(), o));
+    }
+    for (name, bytes) in &files {
+        let o = episode_outcomes(bytes, &scene, &settings, &|| pb.inc(1))
+            .with_context(|| format!("evaluating {name}"))?;
+        outcomes.push((name.clone(), o));
+    }
+    pb.finish_and_clear();
+    println!(
+        "{task:?}, the same {} starts from seed {} for every entry:",
+        args.episodes, args.seed
+    );
+    let mut report = Comparison {
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        task: format!("{task:?}"),
+        start_seed: args.seed,
+        episodes: args.episodes,
+        can_quantisation: !args.no_can_quantisation,
+        entries: Vec::new(),
+        pairs: Vec::new(),
+        wall_s: 0.0,
+    };
+    for (name, o) in &outcomes {
+        let e = PolicyEval::from_outcomes(o);
+        let (lo, hi) = wilson_interval(e.successes, e.episodes);
+        println!(
+            "  {name}: {}/{} = {:.1}% (95% CI {:.1}-{:.1}%)",
+            e.successes,
+            e.episodes,
+            100.0 * e.success_rate(),
+            100.0 * lo,
+            100.0 * hi
+        );
+        report.entries.push(Entry {
+            name: name.clone(),
+            successes: e.successes,
+            episodes: e.episodes,
+            interval_95: (100.0 * lo, 100.0 * hi),
+        });
+    }
+    for (i, (a, oa)) in outcomes.iter().enumerate() {
+        for (b, ob) in &outcomes[i + 1..] {
+            let p = Paired::of(oa, ob);
+            println!(
+                "  {a} vs {b}: only the first {}, only the second {}, McNemar p = {:.4}",
+                p.only_a, p.only_b, p.p_value
+            );
+            report.pairs.push(Pair {
+                a: a.clone(),
+                b: b.clone(),
+                paired: p,
+            });
+        }
+    }
+    report.wall_s = started.elapsed().as_secs_f64();
+    if let Some(path) = &args.json {
+        let json = serde_json::to_string_pretty(&report)?;
+        write_atomic(path, json.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        println!("comparison written to {}", path.display());
+    }
+    Ok(())
+}

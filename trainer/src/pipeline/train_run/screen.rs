@@ -1,0 +1,102 @@
+//! Failed-start revisits of a fine-tune (`start.failed_starts`): before training, the policy the
+//! run starts from runs on that many screening starts ([`SCREEN_SEED`]), and training episodes
+//! revisit the starts it failed (`dex_env::start_states`, revisits). A clone at 97% success fails 3
+//! starts in 100, so a fine-tune from uniform starts meets its clone's failures a few times in a
+//! whole run; revisiting puts them in a fixed share of its episodes. The list goes to the seed
+//! folder's `failed_starts.json` and is reused when the same file was screened on the same starts
+//! (a resumed run trains on the same list).
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::*;
+use crate::env::Revisits;
+use crate::env::evaluate::episode_outcomes;
+use crate::env::seeds::{SCREEN_SEED, episode_seed};
+
+/// What a seed's screening found.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Screening {
+    /// The policy file screened.
+    pub policy: PathBuf,
+    /// Its SHA-256 (hex), so that a re-made file of the same name is screened again.
+    pub sha256: String,
+    /// First seed of the screening starts.
+    pub start_seed: u64,
+    /// Starts screened.
+    pub screened: u32,
+    /// The seeds (`episode_seed(start_seed, i)`) of the starts the policy failed, in episode order.
+    pub failed: Vec<u64>,
+}
+
+const SCREEN_FILE: &str = "failed_starts.json";
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// The screening of `init` for seed folder `dir` (`start.failed_starts` starts), read from
+/// `failed_starts.json` when that file screened the same policy bytes on the same starts, else run
+/// and written there.
+pub(super) fn screen(
+    s: &TrainSettings,
+    (seed, init): (u64, &Path),
+    dir: &Path,
+    scene: &Scene,
+    on_event: &mut dyn FnMut(TrainEvent<'_>),
+) -> Result<Screening, TrainRunError> {
+    let file = std::fs::read(init).map_err(io_at(init))?;
+    let sha256 = sha256_hex(&file);
+    let path = dir.join(SCREEN_FILE);
+    if path.exists() {
+        let text = std::fs::read_to_string(&path).map_err(io_at(&path))?;
+        let kept: Screening =
+            serde_json::from_str(&text).map_err(|source| TrainRunError::DamagedScreening {
+                path: path.clone(),
+                source,
+            })?;
+        if kept.sha256 == sha256
+            && kept.screened == s.start.failed_starts
+            && kept.start_seed == SCREEN_SEED
+        {
+            return Ok(kept);
+        }
+    }
+    let settings = eval_settings(s, s.start.failed_starts, SCREEN_SEED);
+    on_event(TrainEvent::ScreeningStarted {
+        seed,
+        starts: s.start.failed_starts,
+    });
+    let outcomes = episode_outcomes(&file, scene, &settings, &|| {})?;
+    let failed = (0u64..)
+        .zip(&outcomes)
+        .filter(|(_, (_, success))| !success)
+        .map(|(i, _)| episode_seed(SCREEN_SEED, i))
+        .collect();
+    let screening = Screening {
+        policy: init.to_path_buf(),
+        sha256,
+        start_seed: SCREEN_SEED,
+        screened: s.start.failed_starts,
+        failed,
+    };
+    std::fs::create_dir_all(dir).map_err(|source| TrainRunError::Create {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    write_file(&path, serde_json::to_string_pretty(&screening)?.as_bytes())?;
+    Ok(screening)
+}
+
+impl Screening {
+    /// The revisits of the run's start states.
+    pub fn revisits(&self, probability: f64) -> Revisits {
+        Revisits {
+            seeds: self.failed.clone(),
+            probability,
+        }
+    }
+}

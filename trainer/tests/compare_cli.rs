@@ -1,0 +1,83 @@
+//! `trainer compare`: policy files and the teacher on the same starts, every pair's McNemar test,
+//! the JSON report; files of different tasks are refused (needs MuJoCo).
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+use common::{REACH_FIXTURE, fresh_path, text, trainer};
+
+const INT8: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/reach_int8_seed0.dxpl"
+);
+
+#[test]
+fn compare_runs_every_entry_on_the_same_starts_and_tests_every_pair() {
+    let dir = fresh_path("compare", "reach");
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("compare.json");
+    let o = trainer(&[
+        "compare",
+        "--teacher",
+        REACH_FIXTURE,
+        INT8,
+        "--episodes",
+        "12",
+        "--seed",
+        "9000000",
+        "--threads",
+        "2",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let entries = r["entries"].as_array().unwrap();
+    assert_eq!(entries.len(), 3);
+    assert!(entries[0]["name"].as_str().unwrap().starts_with("teacher"));
+    let successes: Vec<u64> = entries
+        .iter()
+        .map(|e| e["successes"].as_u64().unwrap())
+        .collect();
+    // The file's own count is what `trainer eval` reports on the same starts.
+    let eval = trainer(&[
+        "eval",
+        REACH_FIXTURE,
+        "--episodes",
+        "12",
+        "--seed",
+        "9000000",
+    ]);
+    assert!(
+        text(&eval).contains(&format!("success {}/12", successes[1])),
+        "{}",
+        text(&eval)
+    );
+    // Three pairs (teacher-f32, teacher-int8, f32-int8), each consistent with the entries' counts.
+    let pairs = r["pairs"].as_array().unwrap();
+    assert_eq!(pairs.len(), 3);
+    for (pair, (a, b)) in pairs.iter().zip([(0, 1), (0, 2), (1, 2)]) {
+        let p = &pair["paired"];
+        assert_eq!(p["a_successes"].as_u64().unwrap(), successes[a]);
+        assert_eq!(p["b_successes"].as_u64().unwrap(), successes[b]);
+        assert_eq!(
+            successes[a] - p["only_a"].as_u64().unwrap(),
+            successes[b] - p["only_b"].as_u64().unwrap(),
+            "the starts both solve"
+        );
+        let pv = p["p_value"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&pv));
+    }
+    assert!(text(&o).contains("McNemar p ="), "{}", text(&o));
+    // Files of two tasks are refused before any episode runs.
+    let stack = concat!(env!("CARGO_MANIFEST_DIR"), "/../policies/stack.dxpl");
+    let o = trainer(&["compare", REACH_FIXTURE, stack, "--episodes", "2"]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("compare policies of one task"),
+        "{}",
+        text(&o)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
