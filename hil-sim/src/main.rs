@@ -97,6 +97,20 @@ enum Command {
         #[arg(long)]
         policy: Option<PathBuf>,
     },
+    /// Join an SLCAN serial line (the firmware node in QEMU, `-serial tcp:HOST:PORT,server=on`)
+    /// to a bus started by another process; runs until either side closes.
+    SlcanBridge {
+        /// The bus, e.g. 127.0.0.1:29536.
+        #[arg(long)]
+        connect: SocketAddr,
+        /// The serial line's TCP socket, e.g. 127.0.0.1:29600.
+        #[arg(long)]
+        serial: SocketAddr,
+        /// Stamp frames to the device with their bus time (Lawicel time stamps): for a
+        /// `hil-sim bus --lockstep` bus, so that the firmware runs on bus time.
+        #[arg(long)]
+        stamp: bool,
+    },
     /// Write a random-weight policy file on the cell's layout (or a mismatched one) for tests.
     MakePolicy {
         /// Output file.
@@ -219,6 +233,11 @@ fn main() -> Result<()> {
             policy,
         } => bench_command(cycles, realtime, policy),
         Command::Node { socketcan, policy } => node_command(&socketcan, policy),
+        Command::SlcanBridge {
+            connect,
+            serial,
+            stamp,
+        } => slcan_bridge_command(connect, serial, stamp),
         Command::MakePolicy {
             out,
             hidden,
@@ -301,6 +320,16 @@ fn bus_command(args: BusArgs) -> Result<()> {
     }
     eprintln!("bus: {:?}", bus.stats());
     bus.shutdown();
+    Ok(())
+}
+
+fn slcan_bridge_command(bus: SocketAddr, serial: SocketAddr, stamp: bool) -> Result<()> {
+    let stop = AtomicBool::new(false);
+    let stats = dex_hil_sim::slcan_bridge::run_bridge(
+        dex_hil_sim::slcan_bridge::BridgeConfig { bus, serial, stamp },
+        &stop,
+    )?;
+    eprintln!("slcan-bridge: {stats:?}");
     Ok(())
 }
 

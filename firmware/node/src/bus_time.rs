@@ -30,17 +30,22 @@ impl NodeClock {
         self.bus_time.get()
     }
 
-    /// A frame's time stamp: advances by the (wrapped) difference to the previous one. Stamps
-    /// wrap every 60 s; successive frames are never a wrap apart on a live bus.
-    pub fn on_stamp(&self, ms: u16) {
-        self.bus_time.set(true);
-        let step = match self.last_stamp.get() {
-            None => u32::from(ms),
-            Some(prev) => (u32::from(ms) + TIMESTAMP_WRAP_MS - u32::from(prev)) % TIMESTAMP_WRAP_MS,
-        };
-        self.last_stamp.set(Some(ms));
-        self.now_us
-            .set(self.now_us.get().saturating_add(u64::from(step) * 1_000));
+    /// A frame's time stamp. The first one switches the clock to bus time and sets it to the
+    /// stamp (returns `true` then); later ones advance it by the (wrapped) difference to the
+    /// previous one. Stamps wrap every 60 s; successive frames are never a wrap apart on a live
+    /// bus.
+    pub fn on_stamp(&self, ms: u16) -> bool {
+        let first = !self.bus_time.replace(true);
+        match self.last_stamp.replace(Some(ms)) {
+            Some(prev) if !first => {
+                let step =
+                    (u32::from(ms) + TIMESTAMP_WRAP_MS - u32::from(prev)) % TIMESTAMP_WRAP_MS;
+                self.now_us
+                    .set(self.now_us.get().saturating_add(u64::from(step) * 1_000));
+            }
+            _ => self.now_us.set(u64::from(ms) * 1_000),
+        }
+        first
     }
 
     /// A control period from the hardware timer (ignored once on bus time).

@@ -55,8 +55,14 @@ const SECTOR6_OFFSET: u32 = 0x4_0000;
 
 /// The STM32F4 flash as one NorFlash: unlocked for each erase or write, locked again after.
 #[cfg(not(feature = "qemu"))]
-#[derive(Debug)]
 pub struct BoardFlash(stm32f4xx_hal::flash::LockedFlash);
+
+#[cfg(not(feature = "qemu"))]
+impl core::fmt::Debug for BoardFlash {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("BoardFlash")
+    }
+}
 
 #[cfg(not(feature = "qemu"))]
 mod board_impl {
@@ -73,11 +79,11 @@ mod board_impl {
         const READ_SIZE: usize = 1;
 
         fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
-            self.0.read(offset, bytes)
+            ReadNorFlash::read(&mut self.0, offset, bytes)
         }
 
         fn capacity(&self) -> usize {
-            self.0.len()
+            ReadNorFlash::capacity(&self.0)
         }
     }
 
@@ -86,11 +92,11 @@ mod board_impl {
         const ERASE_SIZE: usize = <UnlockedFlash<'static> as NorFlash>::ERASE_SIZE;
 
         fn erase(&mut self, from: u32, to: u32) -> Result<(), Error> {
-            self.0.unlocked().erase(from, to)
+            NorFlash::erase(&mut self.0.unlocked(), from, to)
         }
 
         fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Error> {
-            self.0.unlocked().write(offset, bytes)
+            NorFlash::write(&mut self.0.unlocked(), offset, bytes)
         }
     }
 }

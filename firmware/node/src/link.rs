@@ -3,7 +3,6 @@
 
 use dex_runtime::can::CanFrame;
 use embedded_can::Error as _;
-use embedded_can::nb::Can;
 use heapless::spsc::Producer;
 use stm32f4xx_hal::pac::{CAN1, GPIOA, GPIOB, RCC, USART1};
 use stm32f4xx_hal::prelude::*;
@@ -122,7 +121,7 @@ fn stamp(link: &Link) -> Option<u16> {
 pub fn drain(link: &mut Link, producer: &mut Producer<'static, Event>, counters: &Counters) {
     // Bounded: at most this many reads per interrupt, so a babbling line cannot hold the CPU.
     for _ in 0..256 {
-        match link.receive() {
+        match embedded_can::nb::Can::receive(link) {
             Ok(frame) => {
                 let Some(frame) = CanFrame::from_frame(&frame) else {
                     counters.bad_lines.bump();
@@ -166,5 +165,5 @@ pub fn transmit(link: &mut Link, frame: &CanFrame) -> bool {
     ) else {
         return false;
     };
-    nb::block!(link.transmit(&f)).is_ok()
+    nb::block!(embedded_can::nb::Can::transmit(link, &f)).is_ok()
 }

@@ -26,7 +26,9 @@ mod flash;
 mod link;
 mod node;
 mod regions;
+#[cfg(feature = "qemu")]
 mod slcan_can;
+#[cfg(feature = "qemu")]
 mod slcan_rx;
 mod storage;
 

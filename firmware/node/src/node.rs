@@ -5,7 +5,7 @@ use core::fmt::{self, Write as _};
 
 use cortex_m_semihosting::hio;
 use dex_runtime::can::CanFrame;
-use dex_runtime::{Controller, ControllerConfig, Outbox, PolicySlots};
+use dex_runtime::{Clock, Controller, ControllerConfig, Outbox, PolicySlots};
 use heapless::spsc::Consumer;
 use rtic::Mutex;
 
@@ -119,12 +119,12 @@ impl Node {
             }
         }
         while let Some(event) = consumer.dequeue() {
-            let Event::Frame(frame, stamp) = event else {
-                continue;
-            };
+            let Event::Frame(frame, stamp) = event;
             counters.frames_in.bump();
-            if let Some(ms) = stamp {
-                self.clock.on_stamp(ms);
+            if let Some(ms) = stamp
+                && self.clock.on_stamp(ms)
+            {
+                self.restart_on_bus_time(&slots);
             }
             let out = if self.clock.is_bus_time() && frame.standard_id() == Some(SYNC_ID) {
                 self.controller.poll_slots(&self.clock, &mut slots)
@@ -136,6 +136,20 @@ impl Node {
         }
         self.slots = Some(self.commit(slots, counters));
         self.status(counters);
+    }
+
+    /// The first time-stamped frame: the bus (a lockstep simulation) owns time from now on. The
+    /// controller starts afresh on the bus's clock, as a node powered on at that bus time
+    /// would (the periods the timer drove before are forgotten), with the active slot.
+    fn restart_on_bus_time(&mut self, slots: &PolicySlots<'static>) {
+        self.controller = Controller::<'static, WIDTH>::new(self.cfg);
+        if slots.active().is_some() && self.controller.attach_slots(slots).is_err() {
+            log(format_args!("BUSTIME stored policy refused"));
+        }
+        log(format_args!(
+            "BUSTIME controller restarted at {} us",
+            self.clock.now_us()
+        ));
     }
 
     /// Mirrors the regions into NorFlash when a new policy became active and settled (no

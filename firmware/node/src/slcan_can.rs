@@ -7,8 +7,7 @@ use embedded_can::{ErrorKind, Frame};
 use embedded_hal_nb::serial::{Read, Write};
 
 use crate::counters::COUNTERS;
-use crate::event::{Event, Reply};
-use crate::slcan_rx::SlcanRx;
+use crate::slcan_rx::{Reply, RxItem, SlcanRx};
 
 /// Why `receive` produced no frame although bytes came in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -107,11 +106,11 @@ where
             };
             match self.rx.push(byte, &COUNTERS) {
                 None => {}
-                Some(Event::Frame(f, stamp)) => {
+                Some(RxItem::Frame(f, stamp)) => {
                     self.stamp = stamp;
                     return Ok(f);
                 }
-                Some(Event::Reply(r)) => {
+                Some(RxItem::Reply(r)) => {
                     self.answer(r);
                     if r == Reply::Error {
                         return Err(nb::Error::Other(SlcanLinkError::BadLine));

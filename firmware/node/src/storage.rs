@@ -12,75 +12,86 @@
 //! QEMU build [`RamNorFlash`], because QEMU models the STM32F405's flash as ROM and ignores the
 //! flash controller.
 
-use embedded_storage::nor_flash::{
-    ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash, check_erase, check_read,
-    check_write,
-};
+use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
 
 /// Bytes compared per step of [`SlotMirror::sync`].
 const CHUNK: usize = 256;
 
-/// NOR flash semantics over a RAM buffer: erase sets a sector to 0xFF, a write can only clear
-/// bits (it ANDs), reads are plain. For targets whose flash cannot be written (QEMU).
-#[derive(Debug)]
-pub struct RamNorFlash<const SECTOR: usize, const N: usize> {
-    mem: &'static mut [u8; N],
-}
+#[cfg(feature = "qemu")]
+pub use ram::RamNorFlash;
 
-impl<const SECTOR: usize, const N: usize> RamNorFlash<SECTOR, N> {
-    /// Over `mem` (its length a multiple of `SECTOR`), erased.
-    pub fn new(mem: &'static mut [u8; N]) -> Self {
-        mem.fill(0xFF);
-        RamNorFlash { mem }
-    }
-}
+#[cfg(feature = "qemu")]
+mod ram {
+    use embedded_storage::nor_flash::{
+        ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash, check_erase,
+        check_read, check_write,
+    };
 
-/// Errors of [`RamNorFlash`]: the embedded-storage kinds (alignment, bounds).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RamFlashError(pub NorFlashErrorKind);
-
-impl NorFlashError for RamFlashError {
-    fn kind(&self) -> NorFlashErrorKind {
-        self.0
-    }
-}
-
-impl<const SECTOR: usize, const N: usize> ErrorType for RamNorFlash<SECTOR, N> {
-    type Error = RamFlashError;
-}
-
-impl<const SECTOR: usize, const N: usize> ReadNorFlash for RamNorFlash<SECTOR, N> {
-    const READ_SIZE: usize = 1;
-
-    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        check_read(self, offset, bytes.len()).map_err(RamFlashError)?;
-        let start = offset as usize;
-        bytes.copy_from_slice(&self.mem[start..start + bytes.len()]);
-        Ok(())
+    /// NOR flash semantics over a RAM buffer: erase sets a sector to 0xFF, a write can only clear
+    /// bits (it ANDs), reads are plain. For targets whose flash cannot be written (QEMU).
+    #[derive(Debug)]
+    pub struct RamNorFlash<const SECTOR: usize, const N: usize> {
+        mem: &'static mut [u8; N],
     }
 
-    fn capacity(&self) -> usize {
-        N
-    }
-}
-
-impl<const SECTOR: usize, const N: usize> NorFlash for RamNorFlash<SECTOR, N> {
-    const WRITE_SIZE: usize = 1;
-    const ERASE_SIZE: usize = SECTOR;
-
-    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        check_erase(self, from, to).map_err(RamFlashError)?;
-        self.mem[from as usize..to as usize].fill(0xFF);
-        Ok(())
-    }
-
-    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        check_write(self, offset, bytes.len()).map_err(RamFlashError)?;
-        let start = offset as usize;
-        for (cell, b) in self.mem[start..start + bytes.len()].iter_mut().zip(bytes) {
-            *cell &= *b;
+    impl<const SECTOR: usize, const N: usize> RamNorFlash<SECTOR, N> {
+        /// Over `mem` (its length a multiple of `SECTOR`), erased.
+        pub fn new(mem: &'static mut [u8; N]) -> Self {
+            mem.fill(0xFF);
+            RamNorFlash { mem }
         }
-        Ok(())
+    }
+
+    /// Errors of [`RamNorFlash`]: the embedded-storage kinds (alignment, bounds).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub struct RamFlashError(
+        /// What went wrong.
+        pub NorFlashErrorKind,
+    );
+
+    impl NorFlashError for RamFlashError {
+        fn kind(&self) -> NorFlashErrorKind {
+            self.0
+        }
+    }
+
+    impl<const SECTOR: usize, const N: usize> ErrorType for RamNorFlash<SECTOR, N> {
+        type Error = RamFlashError;
+    }
+
+    impl<const SECTOR: usize, const N: usize> ReadNorFlash for RamNorFlash<SECTOR, N> {
+        const READ_SIZE: usize = 1;
+
+        fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+            check_read(self, offset, bytes.len()).map_err(RamFlashError)?;
+            let start = offset as usize;
+            bytes.copy_from_slice(&self.mem[start..start + bytes.len()]);
+            Ok(())
+        }
+
+        fn capacity(&self) -> usize {
+            N
+        }
+    }
+
+    impl<const SECTOR: usize, const N: usize> NorFlash for RamNorFlash<SECTOR, N> {
+        const WRITE_SIZE: usize = 1;
+        const ERASE_SIZE: usize = SECTOR;
+
+        fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+            check_erase(self, from, to).map_err(RamFlashError)?;
+            self.mem[from as usize..to as usize].fill(0xFF);
+            Ok(())
+        }
+
+        fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+            check_write(self, offset, bytes.len()).map_err(RamFlashError)?;
+            let start = offset as usize;
+            for (cell, b) in self.mem[start..start + bytes.len()].iter_mut().zip(bytes) {
+                *cell &= *b;
+            }
+            Ok(())
+        }
     }
 }
 
