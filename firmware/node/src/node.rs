@@ -20,6 +20,8 @@ use crate::storage::SlotMirror;
 pub const WIDTH: usize = 256;
 /// CANopen SYNC: on bus time, the control period's tick.
 const SYNC_ID: u16 = 0x080;
+/// Timer periods between two status lines while frames come in (and nothing is dropped).
+const STATUS_TICKS: u32 = 20;
 
 /// Writes one line over semihosting (ignored when no debugger or QEMU listens).
 pub fn log(args: fmt::Arguments<'_>) {
@@ -50,6 +52,8 @@ pub struct Node {
     cfg: ControllerConfig,
     ticks_seen: u32,
     dropped_seen: u32,
+    frames_seen: u32,
+    status_tick: u32,
     committed: Committed,
 }
 
@@ -90,6 +94,8 @@ impl Node {
             cfg,
             ticks_seen: 0,
             dropped_seen: 0,
+            frames_seen: 0,
+            status_tick: 0,
             committed,
         }
     }
@@ -180,13 +186,20 @@ impl Node {
         slots
     }
 
-    /// A status line whenever something was dropped since the last one.
+    /// A status line whenever something was dropped since the last one, and every
+    /// [`STATUS_TICKS`] timer periods when frames came in.
     fn status(&mut self, counters: &Counters) {
         let dropped = counters.dropped();
-        if dropped == self.dropped_seen {
+        let ticks = counters.ticks.get();
+        let frames = counters.frames_in.get();
+        let due =
+            ticks.wrapping_sub(self.status_tick) >= STATUS_TICKS && frames != self.frames_seen;
+        if dropped == self.dropped_seen && !due {
             return;
         }
         self.dropped_seen = dropped;
+        self.status_tick = ticks;
+        self.frames_seen = frames;
         self.log_status(counters);
     }
 

@@ -1,0 +1,193 @@
+#!/usr/bin/env bash
+# Firmware SIL: the firmware image (firmware/node, `dex-node`) in QEMU's netduinoplus2 as the
+# controller node on the virtual CAN bus, the MuJoCo plant on the other side, lockstep. Its CAN is
+# SLCAN on USART1, joined to the bus by `hil-sim slcan-bridge --stamp` (docs/firmware.md).
+#
+#   scripts/firmware-sil.sh                       # everything (CI)
+#   FIRMWARE_SIL_EPISODES=5 scripts/firmware-sil.sh
+#
+# Checks, each against the host controller node (`hil-sim bus --lockstep --controller`) given the
+# same frames:
+#   1. the policy (the trained Reach policy trainer/tests/fixtures/reach_int8_seed0.dxpl quantised
+#      to int8 by `policy quantise`: 25 kB; policies/grasp.dxpl, 334 kB, exceeds the firmware's
+#      32 KiB RAM slots, see docs/firmware.md) is flashed over the bus into the firmware's slot
+#      (`hil-sim flash`: CANopen program download through the bridge), not built in;
+#   2. a second flash (runtime/tests/golden/jaco_64.dxpl) cut on the wire after 2 s: the firmware
+#      keeps the first policy (one COMMIT in its log, and step 3's actions);
+#   3. N lockstep episodes of the MuJoCo Reach task from `trainer eval`'s starts: every applied
+#      action (`hil-sim plant --actions`) identical to the host node's, the same returns and success;
+#   4. the watchdog: SYNC for 8 periods without observations: emergency 0x8250, every frame
+#      identical to the host node's;
+#   5. bad input straight on the serial line (another QEMU): garbage, half and over-long lines, a
+#      flood of 3,000 frames: refused with BEL, accounted in the firmware's STATUS line, heartbeat
+#      kept, NMT still answered (scripts/firmware_sil.py bad-input).
+# Exits non-zero, loudly, on any difference, missing tool or timeout.
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+FW="$ROOT/firmware"
+TARGET=thumbv7em-none-eabihf
+EPISODES=${FIRMWARE_SIL_EPISODES:-3}
+TASK=reach
+
+die() {
+    echo "firmware-sil: FAIL: $*" >&2
+    exit 1
+}
+step() { echo "== firmware-sil: $*"; }
+start=$(date +%s)
+
+# --- tools ---------------------------------------------------------------------------------------
+if ! command -v qemu-system-arm >/dev/null; then
+    step "installing qemu-system-arm"
+    SUDO=""
+    if [ "$(id -u)" != 0 ]; then
+        command -v sudo >/dev/null || die "need qemu-system-arm and neither root nor sudo to install it"
+        SUDO=sudo
+    fi
+    $SUDO apt-get install -y --no-install-recommends qemu-system-arm >/dev/null ||
+        { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y --no-install-recommends qemu-system-arm >/dev/null; } ||
+        die "apt-get install qemu-system-arm failed"
+fi
+for tool in qemu-system-arm python3 cargo rustup timeout; do
+    command -v "$tool" >/dev/null || die "missing tool: $tool"
+done
+rustup target add "$TARGET" >/dev/null 2>&1 || die "rustup target add $TARGET failed"
+[ -e "$ROOT/third_party/mujoco/lib/libmujoco.so" ] || {
+    step "MuJoCo (scripts/setup-mujoco.sh)"
+    bash "$ROOT/scripts/setup-mujoco.sh" || die "scripts/setup-mujoco.sh failed"
+}
+
+# --- builds --------------------------------------------------------------------------------------
+target_dir() {
+    (cd "$1" && cargo metadata --format-version 1 --no-deps |
+        python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+}
+FW_TARGET=$(target_dir "$FW") || die "cargo metadata failed in $FW"
+TARGET_DIR=$(target_dir "$ROOT") || die "cargo metadata failed in $ROOT"
+W="$FW_TARGET/firmware-sil"
+rm -rf "$W"
+mkdir -p "$W"
+
+step "build: the firmware node (release, QEMU: SLCAN on USART1), hil-sim (MuJoCo plant), policy tool"
+(cd "$FW" && cargo build --release --locked --quiet -p dex-firmware-node) || die "firmware node build failed"
+ELF="$FW_TARGET/$TARGET/release/dex-node"
+# --all-features: the feature set scripts/test.sh's cargo test builds, so the suite reuses it.
+(cd "$ROOT" && cargo build --locked --quiet -p dex-hil-sim -p dex-policy-tool --all-features) ||
+    die "hil-sim build failed"
+HS="$TARGET_DIR/debug/hil-sim"
+POLICY_TOOL="$TARGET_DIR/debug/policy"
+[ -x "$HS" ] && [ -x "$POLICY_TOOL" ] || die "no hil-sim or policy binary in $TARGET_DIR/debug"
+
+POLICY="$W/reach_int8.dxpl"
+"$POLICY_TOOL" quantise "$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl" "$POLICY" >/dev/null ||
+    die "policy quantise failed"
+CUT_POLICY="$ROOT/runtime/tests/golden/jaco_64.dxpl"
+echo "   policy $(stat -c %s "$POLICY") B (Reach, int8), cut transfer of $(stat -c %s "$CUT_POLICY") B"
+
+# --- processes -----------------------------------------------------------------------------------
+pids=()
+cleanup() {
+    local p
+    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+    for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+    pids=()
+}
+trap cleanup EXIT
+
+# start_bus NAME [ARGS]: a lockstep bus with a candump log; sets BUS.
+start_bus() {
+    local name=$1
+    shift
+    "$HS" bus --port 0 --lockstep --log "$W/$name.candump" "$@" >"$W/$name.bus.out" 2>"$W/$name.bus.err" &
+    pids+=($!)
+    for _ in $(seq 100); do
+        BUS=$(sed -n 's/^hil-sim bus listening on //p' "$W/$name.bus.out")
+        [ -n "$BUS" ] && return 0
+        sleep 0.05
+    done
+    die "$name: the bus did not start: $(cat "$W/$name.bus.err")"
+}
+
+free_port() {
+    python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
+}
+
+# start_qemu NAME: the firmware, its USART1 a TCP server on a free port; sets SERIAL.
+start_qemu() {
+    local port
+    port=$(free_port)
+    SERIAL="127.0.0.1:$port"
+    timeout 600 qemu-system-arm -machine netduinoplus2 -display none \
+        -semihosting-config enable=on,target=native \
+        -serial "tcp:$SERIAL,server=on,wait=on" -kernel "$ELF" </dev/null >"$W/$1.qemu.log" 2>&1 &
+    pids+=($!)
+    for _ in $(seq 100); do
+        grep -q "waiting for connection" "$W/$1.qemu.log" 2>/dev/null && return 0
+        sleep 0.05
+    done
+    die "$1: QEMU did not open its serial socket: $(cat "$W/$1.qemu.log")"
+}
+
+# episodes NAME: the plant's episodes and the watchdog check on $BUS.
+episodes() {
+    timeout 240 "$HS" plant --connect "$BUS" --plant mujoco --task "$TASK" --episodes "$EPISODES" --seed 0 \
+        --actions "$W/$1.actions" >"$W/$1.plant" 2>"$W/$1.plant.err" ||
+        die "$1: the plant failed: $(tail -3 "$W/$1.plant.err")"
+    sed 's/^/   /' "$W/$1.plant"
+    timeout 60 python3 "$ROOT/scripts/firmware_sil.py" watchdog "$BUS" "$W/$1.candump" "$W/$1.watchdog" ||
+        die "$1: watchdog check failed"
+}
+
+# --- 1. host controller node: the reference --------------------------------------------------------
+step "host controller node: flash, $EPISODES lockstep $TASK episodes, watchdog"
+start_bus host --controller
+timeout 120 "$HS" flash --connect "$BUS" "$POLICY" | sed 's/^/   /' || die "host: flash failed"
+episodes host
+cleanup
+
+# --- 2. the firmware in QEMU -------------------------------------------------------------------------
+step "firmware node in QEMU over SLCAN: flash, cut flash, $EPISODES lockstep $TASK episodes, watchdog"
+start_bus fw
+start_qemu fw
+"$HS" slcan-bridge --connect "$BUS" --serial "$SERIAL" --stamp 2>"$W/fw.bridge.err" &
+pids+=($!)
+t0=$(date +%s.%N)
+timeout 120 "$HS" flash --connect "$BUS" "$POLICY" | sed 's/^/   /' || die "firmware: flash failed"
+echo "   flash over SLCAN took $(python3 -c "import time; print(f'{time.time() - $t0:.1f}')") s"
+if timeout 2 "$HS" flash --connect "$BUS" "$CUT_POLICY" >"$W/fw.cut.out" 2>&1; then
+    die "firmware: the second flash was meant to be cut but completed"
+fi
+echo "   second flash cut on the wire after 2 s"
+episodes fw
+cleanup
+grep -E '^(BOOT|BUSTIME|COMMIT|FAULT)' "$W/fw.qemu.log" | sed 's/^/   fw: /'
+grep -q '^FAULT' "$W/fw.qemu.log" && die "firmware reported a fault"
+
+# --- 3. compare ------------------------------------------------------------------------------------
+step "compare firmware with host"
+want_crc=$(python3 -c 'import sys, zlib; print("0x%08x" % zlib.crc32(open(sys.argv[1], "rb").read()))' "$POLICY")
+commits=$(grep -c '^COMMIT' "$W/fw.qemu.log" || true)
+[ "$commits" = 1 ] || die "firmware committed $commits policies, want 1 (the cut transfer must not commit)"
+grep -q "^COMMIT active=Some([01]) crc=$want_crc" "$W/fw.qemu.log" ||
+    die "firmware's committed policy is not the flashed one ($want_crc)"
+echo "   one policy committed ($want_crc); the cut transfer left it active"
+cmp -s "$W/host.actions" "$W/fw.actions" ||
+    die "actions differ: $(diff "$W/host.actions" "$W/fw.actions" | head -3)"
+echo "   all $(wc -l <"$W/fw.actions") applied actions identical to the host node's"
+diff <(grep '^episode\|^success' "$W/host.plant" | sed 's/ mode .*//') \
+    <(grep '^episode\|^success' "$W/fw.plant" | sed 's/ mode .*//') >/dev/null ||
+    die "episode results differ"
+echo "   episode returns and success identical"
+cmp -s "$W/host.watchdog" "$W/fw.watchdog" ||
+    die "watchdog frames differ: $(diff "$W/host.watchdog" "$W/fw.watchdog" | head -3)"
+echo "   watchdog: the same $(wc -l <"$W/fw.watchdog") frames, emergency 0x8250 included"
+
+# --- 4. bad input on the serial line ------------------------------------------------------------------
+step "bad input on the serial line"
+start_qemu bad
+timeout 60 python3 "$ROOT/scripts/firmware_sil.py" bad-input "$SERIAL" "$W/bad.qemu.log" ||
+    die "bad input check failed"
+cleanup
+
+echo "firmware-sil: OK ($(($(date +%s) - start)) s)"
