@@ -51,20 +51,6 @@ pub fn clocks(rcc: RCC) -> Rcc {
     }
 }
 
-/// The timer period to program for a control period of `period_us`. QEMU's STM32F2xx/F4 timer
-/// model counts at 1 GHz whatever the RCC says, while the HAL computes the prescaler from the
-/// 16 MHz HSI: the QEMU build scales the request so that the virtual period is right.
-pub fn timer_period(period_us: u32) -> u32 {
-    if cfg!(feature = "qemu") {
-        period_us.saturating_mul(QEMU_TIMER_SCALE)
-    } else {
-        period_us
-    }
-}
-
-/// Ratio of QEMU's timer clock (1 GHz) to the HAL's idea of it (16 MHz HSI): 62.5, rounded.
-const QEMU_TIMER_SCALE: u32 = 1;
-
 /// Opens the link.
 #[cfg(feature = "qemu")]
 pub fn open(pins: Pins, devices: Devices, rcc: &mut Rcc) -> Link {

@@ -6,7 +6,9 @@
 //!   STM32F4's USARTs but no CAN controller).
 //! - **Control period**: TIM2's update interrupt (priority 3, the highest) every
 //!   `ControllerConfig::period_us`; it only counts and pends the control task, so no amount of
-//!   received traffic can delay it.
+//!   received traffic can delay it. Under QEMU the period is not calibrated (QEMU models no RCC
+//!   and runs its STM32 timer model from its own clock): lockstep runs take time from the bus
+//!   instead (`bus_time`).
 //! - **Receive**: the device's interrupt (priority 2: USART1 RXNE or CAN1 FIFO 0 pending) reads
 //!   every waiting frame into a bounded queue; a full queue drops the frame and counts it.
 //! - **Control task** (priority 1, bound to the otherwise unused EXTI0 vector, pended by the two
@@ -79,10 +81,7 @@ mod app {
         );
         let node = Node::boot(dp.FLASH);
         let mut timer = dp.TIM2.counter_us(&mut rcc);
-        if timer
-            .start(crate::link::timer_period(node.period_us()).micros())
-            .is_err()
-        {
+        if timer.start(node.period_us().micros()).is_err() {
             crate::node::log(format_args!("FAULT timer start"));
         }
         timer.listen(TimerEvent::Update);
