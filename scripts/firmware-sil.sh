@@ -5,6 +5,7 @@
 #
 #   scripts/firmware-sil.sh                       # everything (CI)
 #   FIRMWARE_SIL_EPISODES=5 scripts/firmware-sil.sh
+#   FIRMWARE_SIL_TRAINER=1 scripts/firmware-sil.sh  # also against trainer eval (builds the trainer)
 #
 # Checks, each against the host controller node (`hil-sim bus --lockstep --controller`) given the
 # same frames:
@@ -16,6 +17,8 @@
 #      keeps the first policy (one COMMIT in its log, and step 3's actions);
 #   3. N lockstep episodes of the MuJoCo Reach task from `trainer eval`'s starts: every applied
 #      action (`hil-sim plant --actions`) identical to the host node's, the same returns and success;
+#      with FIRMWARE_SIL_TRAINER=1 (scripts/test.sh) also identical to `trainer eval --envelope
+#      --actions` for the same starts (the runtime's evaluator without a bus);
 #   4. the watchdog: SYNC for 8 periods without observations: emergency 0x8250, every frame
 #      identical to the host node's;
 #   5. bad input straight on the serial line (another QEMU): garbage, half and over-long lines, a
@@ -182,6 +185,24 @@ echo "   episode returns and success identical"
 cmp -s "$W/host.watchdog" "$W/fw.watchdog" ||
     die "watchdog frames differ: $(diff "$W/host.watchdog" "$W/fw.watchdog" | head -3)"
 echo "   watchdog: the same $(wc -l <"$W/fw.watchdog") frames, emergency 0x8250 included"
+
+# --- 3b. trainer eval: the same starts through the runtime evaluator, no bus ------------------------
+if [ "${FIRMWARE_SIL_TRAINER:-0}" = 1 ]; then
+    step "trainer eval --actions for the same starts"
+    # Built as tests/test_sil_stack_policy.py builds it (with dexstack selected, cargo reuses the
+    # libraries of scripts/setup-python.sh's build).
+    (cd "$ROOT" && cargo build --locked --quiet -p dex-trainer --bin trainer -p dexstack) ||
+        die "trainer build failed"
+    timeout 300 "$TARGET_DIR/debug/trainer" eval "$POLICY" --episodes "$EPISODES" --seed 0 --envelope \
+        --actions "$W/eval.actions" >"$W/eval.out" 2>"$W/eval.err" || die "trainer eval failed: $(tail -3 "$W/eval.err")"
+    cmp -s "$W/eval.actions" "$W/fw.actions" ||
+        die "actions differ from trainer eval's: $(diff "$W/eval.actions" "$W/fw.actions" | head -3)"
+    diff <(grep '^episode' "$W/eval.out" | grep -o 'success [a-z]*') <(grep '^episode' "$W/fw.plant" | grep -o 'success [a-z]*') >/dev/null ||
+        die "success differs from trainer eval's"
+    echo "   all $(wc -l <"$W/eval.actions") actions and every episode's success identical to trainer eval's"
+else
+    echo "   (trainer eval comparison skipped: FIRMWARE_SIL_TRAINER=1 builds the trainer and adds it; scripts/test.sh sets it)"
+fi
 
 # --- 4. bad input on the serial line ------------------------------------------------------------------
 step "bad input on the serial line"
