@@ -37,7 +37,8 @@
 #      actions_64_int8.f32 (evaluator over the slot) and to the host twin (controller); a transfer cut
 #      in the middle (then a reset) and one with a corrupt segment leave the old slot active;
 #      instructions, RAM and stack of the slot image within budget.
-#   9. the CAN node (firmware/node, docs/firmware.md "The firmware as a CAN node"): the QEMU build
+#   9. the CAN node (firmware/node, docs/firmware.md "The firmware as a CAN node"): host tests and
+#      clippy of its target-independent crates (firmware/slcan, firmware/slot-mirror); the QEMU build
 #      (SLCAN on USART1, RAM-backed NorFlash) and the board build (bxCAN1, the STM32F405's flash
 #      sectors as NorFlash) compile, clippy-clean, their flash and static RAM within budget
 #      (node_*); scripts/firmware-sil.sh runs the QEMU build in the closed loop.
@@ -270,6 +271,11 @@ case_slots() {
 case_node() {
     step "9/9 CAN node (firmware/node): QEMU build (SLCAN) and board build (bxCAN, flash), footprint"
     local variant elf flash ram
+    # The node's target-independent parts, on the host: the SLCAN codec and the slot mirror.
+    (cd "$FW" && cargo test --quiet --locked --target "$HOST" -p dex-slcan -p dex-slot-mirror 2>&1 |
+        grep -E '^test result' | sed 's/^/   /') || die "dex-slcan / dex-slot-mirror tests failed"
+    (cd "$FW" && cargo clippy --quiet --locked --target "$HOST" -p dex-slcan -p dex-slot-mirror --all-targets -- -D warnings) ||
+        die "dex-slcan / dex-slot-mirror clippy failed"
     for variant in qemu board; do
         local feats=()
         [ "$variant" = board ] && feats=(--no-default-features --features board)

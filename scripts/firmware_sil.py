@@ -115,6 +115,15 @@ class Serial:
         self.s = socket.create_connection((host, int(port)), timeout=5)
         self.buf = b""
 
+    def read_until(self, pattern, wait):
+        """Reads until `pattern` (a regex) matches what was read, or `wait` seconds pass."""
+        got, end = b"", time.time() + wait
+        while time.time() < end:
+            got += self.read(0.2)
+            if re.search(pattern, got):
+                break
+        return got
+
     def read(self, wait):
         end = time.time() + wait
         while time.time() < end:
@@ -140,14 +149,16 @@ def flags_queue_full(hex2):
 
 def bad_input(addr, qemu_log):
     ser = Serial(addr)
-    boot = ser.read(1.0)
+    boot = ser.read_until(rb"t%03X" % HEARTBEAT_ID, 20.0)
     if not any(l.startswith(b"%03X" % HEARTBEAT_ID) for l in [l[1:] for l in frame_lines(boot)]):
         fail(f"no heartbeat from the firmware at boot: {boot[:200]!r}")
     # Garbage, half lines, over-long lines, bad hex, bad lengths.
     junk = [b"\x00\xff\xfe", b"hello", b"t12", b"t1G30", b"t1009", b"t1002AA", b"T2000000000",
             b"A" * 100, b"t" + b"0" * 60, b"S9", b"Ox"]
     ser.s.sendall(b"\r".join(junk) + b"\r")
-    answers = ser.read(1.0)
+    answers, end = b"", time.time() + 20
+    while answers.count(b"\x07") < len(junk) and time.time() < end:
+        answers += ser.read(0.2)
     bells = answers.count(b"\x07")
     if bells < len(junk):
         fail(f"{len(junk)} bad lines, only {bells} refused with BEL")
@@ -155,15 +166,18 @@ def bad_input(addr, qemu_log):
     # the control task.
     ser.s.sendall(b"t7FF0\r" * 3000)
     flood = ser.read(2.0)
+    # The serial line is flow-controlled: the firmware may still be working through the flood, so
+    # wait (bounded) for the answer behind it.
     ser.s.sendall(b"F\r")
-    flags = ser.read(0.5)
+    flags = ser.read_until(rb"(?:^|\r)F([0-9A-F]{2})\r", 20.0)
     m = re.search(rb"(?:^|\r)F([0-9A-F]{2})\r", flags)
     if not m:
-        fail(f"no answer to F: {flags[-80:]!r}")
+        fail(f"no answer to F within 20 s: {flags[-80:]!r}")
+    flood += flags
     # Still alive: heartbeat, and NMT start is answered (this node has no policy: emergency
     # 0xFF05, NoPolicy; the observation watchdog itself is checked over the bus, `watchdog`).
     ser.s.sendall(b"t00020110\r")
-    after = ser.read(3.0)
+    after = ser.read_until(rb"t%03X8" % EMCY_ID + rb"05FF", 20.0)
     # One more status line after the last frame (they come every 20 periods while frames do).
     lines = [l[1:] for l in frame_lines(flood + after)]
     if not any(l.startswith(b"%03X" % HEARTBEAT_ID) for l in lines):
@@ -174,12 +188,18 @@ def bad_input(addr, qemu_log):
         fail(f"no emergency 0xFF05 (no policy) after NMT start (emergencies {codes})")
     print(f"   bad input: {bells} bad lines refused with BEL, flood of 3000 frames, status flags "
           f"F{m.group(1).decode()}, heartbeat kept, NMT start answered (emergency 0xFF05: no policy)")
+    # The status line follows the last frame within 20 timer periods: wait for it (bounded).
+    end = time.time() + 20
+    while True:
+        status = [l for l in open(qemu_log, errors="replace") if l.startswith("STATUS ")]
+        last = dict(kv.split("=", 1) for kv in status[-1].split()[1:] if "=" in kv) if status else {}
+        total = int(last.get("frames_in", "0")) + int(last.get("queue_full", "0"))
+        if total >= 3001 or time.time() > end:
+            break
+        ser.read(0.2)
     ser.s.close()
-    time.sleep(0.5)
-    status = [l for l in open(qemu_log, errors="replace") if l.startswith("STATUS ")]
     if not status:
         fail("no STATUS line in the firmware's log")
-    last = dict(kv.split("=", 1) for kv in status[-1].split()[1:] if "=" in kv)
     for key in ("bad_lines", "long_lines"):
         if int(last.get(key, "0")) == 0:
             fail(f"STATUS does not count {key}: {status[-1].strip()}")

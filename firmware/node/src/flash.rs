@@ -1,11 +1,11 @@
 //! The NorFlash behind the slot mirror: RAM-backed under QEMU, the STM32F405's sectors 5 and 6
 //! on a board.
 
-use crate::storage::SlotMirror;
+use dex_slot_mirror::SlotMirror;
 
 /// QEMU: a RAM-backed NorFlash of two sectors, each one region rounded up to 1 KiB.
 #[cfg(feature = "qemu")]
-pub type MirrorFlash = crate::storage::RamNorFlash<RAM_SECTOR, { 2 * RAM_SECTOR }>;
+pub type MirrorFlash = dex_slot_mirror::RamNorFlash<RAM_SECTOR, { 2 * RAM_SECTOR }>;
 
 /// QEMU's RAM-backed sector: one region rounded up to 1 KiB.
 #[cfg(feature = "qemu")]
@@ -33,7 +33,7 @@ pub fn mirror(flash: stm32f4xx_hal::pac::FLASH) -> Option<SlotMirror<MirrorFlash
         // SAFETY: `TAKEN` lets this run once: the only reference to MEM.
         let mem = unsafe { &mut *MEM.0.get() };
         Some(SlotMirror::new(
-            crate::storage::RamNorFlash::new(mem),
+            dex_slot_mirror::RamNorFlash::new(mem),
             [0, RAM_SECTOR as u32],
         ))
     }

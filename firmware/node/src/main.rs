@@ -32,7 +32,6 @@ mod regions;
 mod slcan_can;
 #[cfg(feature = "qemu")]
 mod slcan_rx;
-mod storage;
 
 use panic_semihosting as _;
 

@@ -14,7 +14,7 @@ use crate::counters::Counters;
 use crate::event::Event;
 use crate::flash::MirrorFlash;
 use crate::link::Link;
-use crate::storage::SlotMirror;
+use dex_slot_mirror::SlotMirror;
 
 /// Widest layer the node accepts (the host controller node's width).
 pub const WIDTH: usize = 256;

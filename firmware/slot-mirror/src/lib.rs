@@ -1,4 +1,4 @@
-//! The A/B policy slots' persistent copy behind `embedded-storage`'s [`NorFlash`].
+//! `dex-slot-mirror`: the A/B policy slots' persistent copy behind `embedded-storage`'s [`NorFlash`].
 //!
 //! The runtime's [`dex_runtime::PolicySlots`] reads and writes two byte-addressable regions in
 //! RAM (the policy is read in place by the evaluator). This module keeps each region's persistent
@@ -11,16 +11,15 @@
 //! The board build uses stm32f4xx-hal's `UnlockedFlash` (sectors 5 and 6, 128 KiB each); the
 //! QEMU build [`RamNorFlash`], because QEMU models the STM32F405's flash as ROM and ignores the
 //! flash controller.
+#![no_std]
 
 use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
 
 /// Bytes compared per step of [`SlotMirror::sync`].
 const CHUNK: usize = 256;
 
-#[cfg(feature = "qemu")]
-pub use ram::RamNorFlash;
+pub use ram::{RamFlashError, RamNorFlash};
 
-#[cfg(feature = "qemu")]
 mod ram {
     use embedded_storage::nor_flash::{
         ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash, check_erase,
