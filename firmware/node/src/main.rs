@@ -32,6 +32,7 @@ mod regions;
 mod slcan_can;
 #[cfg(feature = "qemu")]
 mod slcan_rx;
+mod watchdog;
 
 use panic_semihosting as _;
 
@@ -78,7 +79,7 @@ mod app {
             },
             &mut rcc,
         );
-        let node = Node::boot(dp.FLASH);
+        let node = Node::boot(dp.FLASH, crate::watchdog::Dog::start(dp.IWDG));
         let mut timer = dp.TIM2.counter_us(&mut rcc);
         if timer.start(node.period_us().micros()).is_err() {
             crate::node::log(format_args!("FAULT timer start"));

@@ -14,6 +14,7 @@ use crate::counters::Counters;
 use crate::event::Event;
 use crate::flash::MirrorFlash;
 use crate::link::Link;
+use crate::watchdog::Dog;
 use dex_slot_mirror::SlotMirror;
 
 /// Widest layer the node accepts (the host controller node's width).
@@ -55,11 +56,12 @@ pub struct Node {
     frames_seen: u32,
     status_tick: u32,
     committed: Committed,
+    dog: Dog,
 }
 
 impl Node {
     /// Boot: mirror -> regions, mount, attach the active slot if there is one.
-    pub fn boot(flash: stm32f4xx_hal::pac::FLASH) -> Self {
+    pub fn boot(flash: stm32f4xx_hal::pac::FLASH, dog: Dog) -> Self {
         let Some(mut mirror) = crate::flash::mirror(flash) else {
             fatal("flash taken twice")
         };
@@ -97,6 +99,7 @@ impl Node {
             frames_seen: 0,
             status_tick: 0,
             committed,
+            dog,
         }
     }
 
@@ -116,6 +119,9 @@ impl Node {
             fatal("slots lost");
         };
         let ticks = counters.ticks.get();
+        if self.ticks_seen != ticks {
+            self.dog.feed();
+        }
         while self.ticks_seen != ticks {
             self.ticks_seen = self.ticks_seen.wrapping_add(1);
             if !self.clock.is_bus_time() {
