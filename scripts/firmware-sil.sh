@@ -14,7 +14,8 @@
 #      32 KiB RAM slots, see docs/firmware.md) is flashed over the bus into the firmware's slot
 #      (`hil-sim flash`: CANopen program download through the bridge), not built in;
 #   2. a second flash (runtime/tests/golden/jaco_64.dxpl) cut on the wire after 2 s: the firmware
-#      keeps the first policy (one COMMIT in its log, and step 3's actions);
+#      keeps the first policy (one COMMIT in its log, and step 3's actions) and its SDO server
+#      aborts the stale transfer (0x0504_0000) once bus time passes the SDO timeout;
 #   3. N lockstep episodes of the MuJoCo Reach task from `trainer eval`'s starts: every applied
 #      action (`hil-sim plant --actions`) identical to the host node's, the same returns and success;
 #      with FIRMWARE_SIL_TRAINER=1 (scripts/test.sh) also identical to `trainer eval --envelope
@@ -175,6 +176,11 @@ commits=$(grep -c '^COMMIT' "$W/fw.qemu.log" || true)
 grep -q "^COMMIT active=Some([01]) crc=$want_crc" "$W/fw.qemu.log" ||
     die "firmware's committed policy is not the flashed one ($want_crc)"
 echo "   one policy committed ($want_crc); the cut transfer left it active"
+# The controller's SDO server aborts the stale transfer once bus time passes its timeout: abort
+# 0x0504_0000 (SDO protocol timed out) for 0x1F50:1 on 0x590.
+grep -q ' 590#80501F0100000405$' "$W/fw.candump" ||
+    die "no SDO timeout abort (590#80501F0100000405) for the cut transfer in $W/fw.candump"
+echo "   the cut transfer aborted by the firmware's SDO server at $(grep -m1 ' 590#80501F0100000405$' "$W/fw.candump" | cut -d' ' -f1 | tr -d '()') s bus time (0x05040000, timeout)"
 cmp -s "$W/host.actions" "$W/fw.actions" ||
     die "actions differ: $(diff "$W/host.actions" "$W/fw.actions" | head -3)"
 echo "   all $(wc -l <"$W/fw.actions") applied actions identical to the host node's"
