@@ -79,9 +79,13 @@ ELF="$FW_TARGET/$TARGET/release/dex-node"
 # --all-features: the feature set scripts/test.sh's cargo test builds, so the suite reuses it.
 (cd "$ROOT" && cargo build --locked --quiet -p dex-hil-sim -p dex-policy-tool --all-features) ||
     die "hil-sim build failed"
-HS="$TARGET_DIR/debug/hil-sim"
-POLICY_TOOL="$TARGET_DIR/debug/policy"
-[ -x "$HS" ] && [ -x "$POLICY_TOOL" ] || die "no hil-sim or policy binary in $TARGET_DIR/debug"
+# Copies: the Python harness, which scripts/test.sh runs beside this script, rebuilds
+# target/debug/hil-sim with other features.
+for bin in hil-sim policy; do
+    cp "$TARGET_DIR/debug/$bin" "$W/$bin" || die "no $bin binary in $TARGET_DIR/debug"
+done
+HS="$W/hil-sim"
+POLICY_TOOL="$W/policy"
 
 POLICY="$W/reach_int8.dxpl"
 "$POLICY_TOOL" quantise "$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl" "$POLICY" >/dev/null ||
@@ -199,7 +203,8 @@ if [ "${FIRMWARE_SIL_TRAINER:-0}" = 1 ]; then
     # libraries of scripts/setup-python.sh's build).
     (cd "$ROOT" && cargo build --locked --quiet -p dex-trainer --bin trainer -p dexstack) ||
         die "trainer build failed"
-    timeout 300 "$TARGET_DIR/debug/trainer" eval "$POLICY" --episodes "$EPISODES" --seed 0 --envelope \
+    cp "$TARGET_DIR/debug/trainer" "$W/trainer" || die "no trainer binary in $TARGET_DIR/debug"
+    timeout 300 "$W/trainer" eval "$POLICY" --episodes "$EPISODES" --seed 0 --envelope \
         --actions "$W/eval.actions" >"$W/eval.out" 2>"$W/eval.err" || die "trainer eval failed: $(tail -3 "$W/eval.err")"
     cmp -s "$W/eval.actions" "$W/fw.actions" ||
         die "actions differ from trainer eval's: $(diff "$W/eval.actions" "$W/fw.actions" | head -3)"

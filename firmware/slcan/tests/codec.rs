@@ -75,7 +75,12 @@ fn bad_lines_are_errors_not_panics() {
         (b"t1000EA60", SlcanError::BadArgument),
     ];
     for (line, want) in cases {
-        assert_eq!(parse_line(line), Err(*want), "{}", String::from_utf8_lossy(line));
+        assert_eq!(
+            parse_line(line),
+            Err(*want),
+            "{}",
+            String::from_utf8_lossy(line)
+        );
     }
     // Every byte value as a one-byte line, and every prefix of a valid line: no panic.
     for b in 0..=255u8 {
