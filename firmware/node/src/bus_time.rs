@@ -48,11 +48,12 @@ impl NodeClock {
         first
     }
 
-    /// A control period from the hardware timer (ignored once on bus time).
-    pub fn on_tick(&self, period_us: u32) {
+    /// `periods` control periods of `period_us` from the hardware timer (ignored once on bus
+    /// time).
+    pub fn on_ticks(&self, periods: u32, period_us: u32) {
         if !self.bus_time.get() {
-            self.now_us
-                .set(self.now_us.get().saturating_add(u64::from(period_us)));
+            let step = u64::from(periods) * u64::from(period_us);
+            self.now_us.set(self.now_us.get().saturating_add(step));
         }
     }
 }

@@ -118,14 +118,15 @@ impl Node {
         let Some(mut slots) = self.slots.take() else {
             fatal("slots lost");
         };
+        // Timer periods since the last run: one poll, the clock advanced by all of them (a late
+        // run counts as missed cycles in the controller, as the host node's real-time loop does).
         let ticks = counters.ticks.get();
-        if self.ticks_seen != ticks {
+        let periods = ticks.wrapping_sub(self.ticks_seen);
+        self.ticks_seen = ticks;
+        if periods > 0 {
             self.dog.feed();
-        }
-        while self.ticks_seen != ticks {
-            self.ticks_seen = self.ticks_seen.wrapping_add(1);
             if !self.clock.is_bus_time() {
-                self.clock.on_tick(self.cfg.period_us);
+                self.clock.on_ticks(periods, self.cfg.period_us);
                 let out = self.controller.poll_slots(&self.clock, &mut slots);
                 send(link, &out, counters);
             }
