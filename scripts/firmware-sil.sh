@@ -6,6 +6,7 @@
 #   scripts/firmware-sil.sh                       # everything (CI)
 #   FIRMWARE_SIL_EPISODES=5 scripts/firmware-sil.sh
 #   FIRMWARE_SIL_TRAINER=1 scripts/firmware-sil.sh  # also against trainer eval (builds the trainer)
+#   FIRMWARE_SIL_TIMEOUT=1200                       # bound on the whole run in seconds (default)
 #
 # Checks, each against the host controller node (`hil-sim bus --lockstep --controller`) given the
 # same frames:
@@ -27,6 +28,16 @@
 #      kept, NMT still answered (scripts/firmware_sil.py bad-input).
 # Exits non-zero, loudly, on any difference, missing tool or timeout.
 set -euo pipefail
+
+# The whole run under one bound (cold builds included), so that nothing can hang CI: on the
+# bound the inner run is stopped, its processes are killed (EXIT trap) and the status is 124.
+if [ -z "${FIRMWARE_SIL_INNER:-}" ]; then
+    rc=0
+    FIRMWARE_SIL_INNER=1 timeout "${FIRMWARE_SIL_TIMEOUT:-1200}" bash "$0" "$@" || rc=$?
+    [ "$rc" = 124 ] && echo "firmware-sil: FAIL: timed out after ${FIRMWARE_SIL_TIMEOUT:-1200} s" >&2
+    exit "$rc"
+fi
+trap 'exit 143' TERM
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 FW="$ROOT/firmware"

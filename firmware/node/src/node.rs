@@ -21,11 +21,15 @@ use dex_slot_mirror::SlotMirror;
 pub const WIDTH: usize = 256;
 /// CANopen SYNC: on bus time, the control period's tick.
 const SYNC_ID: u16 = 0x080;
-/// Timer periods between two status lines while frames come in (and nothing is dropped).
+/// Least timer periods between two status lines.
 const STATUS_TICKS: u32 = 20;
 
-/// Writes one line over semihosting (ignored when no debugger or QEMU listens).
+/// Writes one line over semihosting. On a board only with a debugger attached: semihosting's
+/// breakpoint without one would be a HardFault. (QEMU serves semihosting itself.)
 pub fn log(args: fmt::Arguments<'_>) {
+    if !cfg!(feature = "qemu") && !cortex_m::peripheral::DCB::is_debugger_attached() {
+        return;
+    }
     if let Ok(mut out) = hio::hstdout() {
         let _ = out.write_fmt(args);
         let _ = out.write_str("\n");
@@ -193,15 +197,15 @@ impl Node {
         slots
     }
 
-    /// A status line whenever something was dropped since the last one, and every
-    /// [`STATUS_TICKS`] timer periods when frames came in.
+    /// A status line when something was dropped or frames came in since the last one, at most
+    /// one every [`STATUS_TICKS`] timer periods: a flood of bad input cannot turn into a flood of
+    /// (slow) log writes.
     fn status(&mut self, counters: &Counters) {
         let dropped = counters.dropped();
         let ticks = counters.ticks.get();
         let frames = counters.frames_in.get();
-        let due =
-            ticks.wrapping_sub(self.status_tick) >= STATUS_TICKS && frames != self.frames_seen;
-        if dropped == self.dropped_seen && !due {
+        let changed = dropped != self.dropped_seen || frames != self.frames_seen;
+        if !changed || ticks.wrapping_sub(self.status_tick) < STATUS_TICKS {
             return;
         }
         self.dropped_seen = dropped;
