@@ -148,6 +148,26 @@ start_qemu() {
     die "$1: QEMU did not open its serial socket: $(cat "$W/$1.qemu.log")"
 }
 
+# start_bridge NAME: the SLCAN bridge between $BUS and QEMU's $SERIAL, stamping frames with bus
+# time. Returns once the firmware has answered the bridge's start-up version request: frames put
+# on the bus before then could reach a USART the firmware has not enabled yet, which drops them
+# (docs/firmware.md, "Start-up of the serial link").
+start_bridge() {
+    local pid
+    "$HS" slcan-bridge --connect "$BUS" --serial "$SERIAL" --stamp >"$W/$1.bridge.out" 2>"$W/$1.bridge.err" &
+    pid=$!
+    pids+=("$pid")
+    for _ in $(seq 300); do
+        grep -q "^hil-sim slcan-bridge ready" "$W/$1.bridge.out" 2>/dev/null && {
+            sed 's/^hil-sim slcan-bridge /   bridge /' "$W/$1.bridge.out"
+            return 0
+        }
+        kill -0 "$pid" 2>/dev/null || die "$1: the SLCAN bridge stopped: $(cat "$W/$1.bridge.err")"
+        sleep 0.05
+    done
+    die "$1: the SLCAN bridge was not ready within 15 s: $(cat "$W/$1.bridge.err")"
+}
+
 # episodes NAME: the plant's episodes and the watchdog check on $BUS.
 episodes() {
     timeout 240 "$HS" plant --connect "$BUS" --plant mujoco --task "$TASK" --episodes "$EPISODES" --seed 0 \
@@ -169,8 +189,7 @@ cleanup
 step "firmware node in QEMU over SLCAN: flash, cut flash, $EPISODES lockstep $TASK episodes, watchdog"
 start_bus fw
 start_qemu fw
-"$HS" slcan-bridge --connect "$BUS" --serial "$SERIAL" --stamp 2>"$W/fw.bridge.err" &
-pids+=($!)
+start_bridge fw
 t0=$(date +%s.%N)
 timeout 120 "$HS" flash --connect "$BUS" "$POLICY" | sed 's/^/   /' || die "firmware: flash failed"
 echo "   flash over SLCAN took $(python3 -c "import time; print(f'{time.time() - $t0:.1f}')") s"
