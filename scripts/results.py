@@ -72,11 +72,12 @@ SECTIONS = [
     ),
     (
         "ddpg-demos",
-        "DDPG from demonstrations on Grasp: `trainer train --task grasp`",
-        "The default of `trainer train` for the manipulation tasks (`--preset demos`: 200 recorded "
-        "demonstrations, 20,000 pre-training updates, 20,000 transitions; the ablation's `no-norm` "
-        "row, [experiments.md](experiments.md#ablation-at-grasp-scale-issue-12)). Its later "
-        "seed-0 figure over 100 starts is in the side by side below.",
+        "DDPG from demonstrations on Grasp: `trainer train --task grasp --preset demos`",
+        "The default of `trainer train` for the manipulation tasks until session 16, which made the "
+        "clone stage and its guarded fine-tune (`--preset finetune`) the default (`--preset demos`: "
+        "200 recorded demonstrations, 20,000 pre-training updates, 20,000 transitions; the "
+        "ablation's `no-norm` row, [experiments.md](experiments.md#ablation-at-grasp-scale-issue-12)). "
+        "Its later seed-0 figure over 100 starts is in the side by side below.",
     ),
     (
         "side-by-side",

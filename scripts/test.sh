@@ -49,10 +49,10 @@ step "Debian packages (Mesa's EGL and OSMesa for the dexstack renderer)"
 render_pkgs="libegl1 libegl-mesa0 libgl1 libopengl0 libgl1-mesa-dri libosmesa6"
 debian_install $render_pkgs
 
-step "Debian packages (Open MPI and libclang for the trainer's mpi feature)"
+step "Debian packages (Open MPI and libclang for the trainer's mpi feature; iproute2 for the namespace hosts of scripts/cluster-sim.sh)"
 # `--all-features` builds the trainer's `mpi` feature (the mpi crate's bindings need libclang)
 # and trainer/tests/distributed.rs runs mpirun.
-mpi_pkgs="openmpi-bin libopenmpi-dev libclang-dev"
+mpi_pkgs="openmpi-bin libopenmpi-dev libclang-dev iproute2"
 debian_install $mpi_pkgs
 need mpirun "install Open MPI (Debian: apt-get install openmpi-bin libopenmpi-dev)"
 

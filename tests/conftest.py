@@ -311,25 +311,33 @@ def wait_heartbeat(bus, state, seconds=2.0, node=NODE):
         f"no heartbeat with state {state:#x}: {[hex(m.arbitration_id) for _, m in got][-10:]}"
     )
     assert len(got[-1][1].data) == 1, "CiA 301 heartbeat: one byte"
-    # The status TPDO goes out right after the heartbeat: read it too, so that what a test
-    # collects next starts after both.
+    # The status TPDO goes out with the heartbeat: read it too, so that what a test collects next
+    # starts after both (on a timed bus it wins arbitration and came first).
     status = tpdo_cob_id(node, 4)
+    if any(m.arbitration_id == status for _, m in got[-3:]):
+        return got
     return got + collect(bus, 0.1, lambda m: m.arbitration_id == status)
 
 
 def heartbeats(got, node=NODE):
     """(bus timestamp, heartbeat) pairs from (time, msg) pairs: the CiA 301 heartbeat's one NMT
-    state byte (`nmt_state`) with the status TPDO the controller sends right after it (`state`,
-    `fault_code`, the envelope bits, its E2E `alive_counter`)."""
+    state byte (`nmt_state`) with the status TPDO the controller sends with it (`state`,
+    `fault_code`, the envelope bits, its E2E `alive_counter`). The two are written together; on a
+    timed bus the status TPDO (TPDO 4, 0x1A0 + node) wins arbitration over the
+    heartbeat (0x700 + node) and is on the wire first, so the nearest one in bus time
+    is taken, before or after (25 ms: half a period, as node and bus are two
+    processes stamped by the wall clock, and a loaded runner can part their writes by milliseconds)."""
     hb_id, status_id = 0x700 + node, tpdo_cob_id(node, 4)
     msgs = [m for _, m in got]
+    statuses = [n for n in msgs if n.arbitration_id == status_id]
     out = []
-    for i, m in enumerate(msgs):
+    for m in msgs:
         if m.arbitration_id != hb_id:
             continue
         assert len(m.data) == 1, m
         d = {"nmt_state": m.data[0]}
-        status = next((n for n in msgs[i + 1:] if n.arbitration_id == status_id), None)
+        near = [n for n in statuses if abs(n.timestamp - m.timestamp) < 0.025]
+        status = min(near, key=lambda n: abs(n.timestamp - m.timestamp), default=None)
         if status is not None:
             d.update(STATUS_MESSAGE.decode(status.data, decode_choices=False))
         out.append((m.timestamp, d))

@@ -199,7 +199,12 @@ def test_bus_off_safe_action_then_emcy_8140_and_preoperational(operational):
     after_emcy = [m for t, m in back if t >= emcy[0][0]]
     hb = heartbeat_of([(None, m) for m in after_emcy])
     assert hb and all((h["nmt_state"], h["state"], h["fault_code"]) == (PREOP, 1, 6) for h in hb), hb
-    assert after_emcy[1].arbitration_id == HEARTBEAT_ID  # sent together with the emergency
+    # Sent together with the emergency, in the same outbox (runtime/tests/controller.rs checks the
+    # order frame by frame): here the next heartbeat comes well inside half a period. Not "within
+    # a few frame times": node and bus are two processes stamped by the wall clock, and on a
+    # loaded CI runner their writes were seen 5.2 ms apart.
+    hb_t = next(t for t, m in back if t >= emcy[0][0] and m.arbitration_id == HEARTBEAT_ID)
+    assert hb_t - emcy[0][0] < PERIOD / 2, (hb_t, emcy[0][0])
     # Zero velocity every cycle once back (about 6 cycles in 300 ms), although the plant keeps
     # sending observations: pre-operational does not evaluate them.
     assert_zero_actions([m for _, m in back], at_least=4)

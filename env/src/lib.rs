@@ -27,6 +27,7 @@ pub mod fk_constants;
 pub mod kinematics;
 pub mod markov_demo;
 pub mod observation;
+pub mod paired;
 pub mod rewards;
 pub mod rng;
 pub mod scene;

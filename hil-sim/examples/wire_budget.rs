@@ -3,36 +3,31 @@
 //! (`firmware/budget.txt`): the plant queues the 15 observation frames at once, the controller
 //! computes after the last one arrives, then sends the 3 action frames.
 //!
+//! Then the same with CAN FD (`dex_hil_sim::wire_fd`, a model: the bus and the runtime carry classic
+//! frames only): the observation's values (2 bytes each, as in the classic frames) in two frames of
+//! an FD length with the 2-byte E2E header each, the action in one.
+//!
 //! `cargo run -p dex-hil-sim --example wire_budget [INSTRUCTIONS_PER_STEP] [CPU_HZ]`
 //! (defaults: `controller_step` of firmware/budget.txt, 168 MHz, one instruction per cycle: a
 //! lower bound of the compute time on a Cortex-M4F, whose loads and multiplies can take more).
 
+use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
 use dex_hil_sim::wire::{Offer, bits_ns, schedule, unstuffed_bits, worst_case_bits};
+use dex_hil_sim::wire_fd::{FdWire, fd_bits, fd_length};
 use dex_runtime::ControllerConfig;
 use dex_runtime::can::messages::{ACTION_FRAMES, OBS_FRAMES, rpdo_cob_id, tpdo_cob_id};
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
-fn main() {
-    let budget = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../firmware/budget.txt"
-    ))
-    .unwrap_or_default();
-    let from_budget = |key: &str| {
-        budget
-            .lines()
-            .find_map(|l| l.strip_prefix(key)?.trim().parse::<u64>().ok())
-    };
+fn main() -> Result<(), dex_hil_sim::compute::ComputeError> {
     let args: Vec<String> = std::env::args().collect();
-    let instructions = args
-        .get(1)
-        .and_then(|a| a.parse().ok())
-        .or_else(|| from_budget("controller_step "))
-        .unwrap_or(608_842);
-    let hz: u64 = args
-        .get(2)
-        .and_then(|a| a.parse().ok())
-        .unwrap_or(168_000_000);
-    let compute_ns = instructions * 1_000_000_000 / hz;
+    let compute = StepCompute::new(
+        args.get(1).and_then(|a| a.parse().ok()),
+        args.get(2)
+            .and_then(|a| a.parse().ok())
+            .unwrap_or(DEFAULT_CPU_HZ),
+    )?;
+    let (instructions, hz) = (compute.instructions, compute.cpu_hz);
+    let compute_ns = compute.ns();
     println!(
         "controller: {instructions} instructions per step at {} MHz = {:.2} ms",
         hz / 1_000_000,
@@ -84,6 +79,59 @@ fn main() {
             debug_assert_eq!(
                 act_end - ready,
                 bits_ns(bits, bitrate) * ACTION_FRAMES as u64
+            );
+        }
+    }
+    fd_table(compute_ns, hz);
+    Ok(())
+}
+
+/// Bytes of a frame carrying `values` 2-byte values behind the 2-byte E2E header (CRC, alive
+/// and sample counters), rounded up to an FD length.
+fn fd_frame_len(values: usize) -> usize {
+    fd_length(2 + 2 * values).unwrap_or(64)
+}
+
+/// The observation in two FD frames, the action in one: the loop's time at three bit-rate pairs.
+fn fd_table(compute_ns: u64, hz: u64) {
+    const OBS_FD_FRAMES: usize = 2;
+    const GOAL_NS: u64 = 1_500_000;
+    let obs_len = fd_frame_len(OBS_DIM.div_ceil(OBS_FD_FRAMES));
+    let act_len = fd_frame_len(ACT_DIM);
+    println!();
+    println!(
+        "CAN FD (model): observation in {OBS_FD_FRAMES} frames of {obs_len} bytes, action in one of \
+         {act_len} bytes"
+    );
+    println!(
+        "| nominal / data bit rate | stuffing | observation on the wire | compute | actions on the wire | observation to last action | compute that fits 1.5 ms |"
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|");
+    for (nominal, data) in [
+        (500_000u32, 2_000_000u32),
+        (1_000_000, 2_000_000),
+        (1_000_000, 5_000_000),
+    ] {
+        let wire = FdWire {
+            nominal_bitrate: nominal,
+            data_bitrate: data,
+        };
+        for (name, worst) in [("none", false), ("worst case", true)] {
+            let obs = OBS_FD_FRAMES as u64 * wire.frame_ns(fd_bits(false, obs_len, worst));
+            let act = wire.frame_ns(fd_bits(false, act_len, worst));
+            let total = obs + compute_ns + act;
+            let left_ns = GOAL_NS.saturating_sub(obs + act);
+            let ms = |ns: u64| ns as f64 / 1e6;
+            println!(
+                "| {} kbit/s / {} Mbit/s | {name} | {:.3} ms | {:.2} ms | {:.3} ms | {:.2} ms | {:.2} ms = {} instructions |",
+                nominal / 1000,
+                data / 1_000_000,
+                ms(obs),
+                ms(compute_ns),
+                ms(act),
+                ms(total),
+                ms(left_ns),
+                u128::from(left_ns) * u128::from(hz) / 1_000_000_000
             );
         }
     }

@@ -8,6 +8,15 @@
 //! the bus. Delayed frames wait in a time-ordered heap inside the bus thread. Bus time is the wall
 //! clock since start, or in lockstep mode a virtual clock set by [`Bus::set_time`] or `< time US >`.
 //!
+//! Wire time ([`BusConfig::wire`], `hil-sim bus --bitrate`): every frame is offered to the wire
+//! ([`crate::arbitration`]) and takes its bits over the bit rate; frames offered while the wire is
+//! busy wait, and at each idle the lowest identifier among them goes next. A frame's timestamp is
+//! its end of frame. In real time a frame is delivered when the wall clock reaches its end of frame;
+//! in lockstep it is delivered at once with its virtual end time, and is offered at the bus time (or
+//! at the later time its sender names with `< txtime US >`: a lockstep node's answer, after its
+//! compute), so the run stays deterministic. Without `wire` the bus is untimed, as before: a frame's
+//! timestamp is the bus time it arrived at.
+//!
 //! What a client writes in one system call reaches the bus thread as one event: a reader hands over
 //! every message of one read together ([`Event::Batch`]). A node flushes its answer to a frame in one
 //! write (the controller's action frames and the emergency after them, a heartbeat and the status
@@ -20,7 +29,7 @@
 //! work is tiny, and blocking sockets with `TCP_NODELAY` give the lowest latency without pulling in
 //! a runtime; the only shared state is behind one channel into the bus thread.
 
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::{BinaryHeap, HashMap, VecDeque};
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -34,6 +43,9 @@ use std::time::{Duration, Instant};
 use dex_runtime::can::CanFrame;
 use embedded_can::{Frame, Id};
 
+use crate::wire::WireConfig;
+
+use crate::arbitration::{Arbiter, OnWire};
 use crate::protocol::{Framer, Request, candump_line, error_message, frame_message, parse_request};
 
 /// Linux `CAN_ERR_BUSOFF` class bit, sent as `< error 040 TS >` when bus-off starts.
@@ -93,6 +105,9 @@ pub struct BusConfig {
     /// Fixed kernel send buffer per client socket (`SO_SNDBUF`); `None` keeps autotuning. A small
     /// one makes a stalled client's queue fill quickly (tests of the slow-client path).
     pub send_buffer: Option<usize>,
+    /// Time on the wire: bit rate and stuffing of every frame, arbitration by identifier,
+    /// end-of-frame timestamps. `None`: untimed (a frame's timestamp is when it arrived).
+    pub wire: Option<WireConfig>,
 }
 
 impl Default for BusConfig {
@@ -104,6 +119,7 @@ impl Default for BusConfig {
             log: None,
             channel: "vcan0".to_string(),
             send_buffer: None,
+            wire: None,
         }
     }
 }
@@ -133,6 +149,10 @@ pub struct BusStats {
     pub clients: u64,
     /// Clients connected since start.
     pub connections: u64,
+    /// Frames that waited for the wire (offered while it was busy or lost arbitration).
+    pub wire_waited: u64,
+    /// Most frames waiting for the wire at once.
+    pub wire_queue_peak: u64,
 }
 
 /// What a fault rule does to a matching frame.
@@ -169,6 +189,11 @@ pub enum ControlCommand {
     Clear,
     /// Set virtual bus time (lockstep).
     Time(u64),
+    /// The frames this client sends next are offered to the wire at this bus time (lockstep;
+    /// never earlier than the bus time): a node's answer after its compute. Not answered.
+    TxTime(u64),
+    /// Report the bus time: the clock, or the end of the last frame on the wire if later.
+    Now,
     /// Report the bus counters.
     Stats,
     /// Report the status line of the in-process controller node.
@@ -213,6 +238,8 @@ pub fn parse_control(words: &[String]) -> Result<ControlCommand, String> {
         ["fault", "busoff", ms] => Ok(ControlCommand::BusOff(num(ms)?.saturating_mul(1000))),
         ["fault", "clear"] => Ok(ControlCommand::Clear),
         ["time", us] => Ok(ControlCommand::Time(num(us)?)),
+        ["txtime", us] => Ok(ControlCommand::TxTime(num(us)?)),
+        ["now"] => Ok(ControlCommand::Now),
         ["stats"] => Ok(ControlCommand::Stats),
         ["diag"] => Ok(ControlCommand::Diag),
         ["quit"] => Ok(ControlCommand::Quit),
@@ -248,6 +275,8 @@ enum Event {
         command: Result<ControlCommand, String>,
     },
     Unknown,
+    /// Asks for the bus time ([`Bus::bus_time`]).
+    Now(Sender<u64>),
     /// Everything one read of a client's socket held, in order: handled as one event, so that the
     /// frames a client writes at once get onto the bus with nothing of another client's between.
     Batch(Vec<Event>),
@@ -258,7 +287,12 @@ struct Client {
     out: SyncSender<Outgoing>,
     subscribed: bool,
     dropped: u64,
+    /// Offer time (us) of the frames it sends next, from `< txtime US >`.
+    txtime: u64,
 }
+
+/// A frame on its way over the wire: who sent it.
+type Carried = (u64, CanFrame);
 
 #[derive(PartialEq, Eq, PartialOrd, Ord)]
 struct Delayed {
@@ -341,6 +375,9 @@ impl Bus {
             vnow: 0,
             log,
             stats: BusStats::default(),
+            arbiter: cfg.wire.map(Arbiter::new),
+            in_flight: VecDeque::new(),
+            event_ns: 0,
         };
         threads.push(
             std::thread::Builder::new()
@@ -385,6 +422,17 @@ impl Bus {
             client: None,
             command: Ok(command),
         });
+    }
+
+    /// The bus time in microseconds: the clock, or the end of the last frame on the wire if that
+    /// is later (a lockstep plant starts its cycles after it). Ordered after every event sent to
+    /// the bus before; 0 if the bus has stopped.
+    pub fn bus_time(&self) -> u64 {
+        let (tx, rx) = mpsc::channel();
+        if self.events.send(Event::Now(tx)).is_err() {
+            return 0;
+        }
+        rx.recv_timeout(Duration::from_secs(2)).unwrap_or(0)
     }
 
     /// A snapshot of the counters (updated by the bus thread after every event).
@@ -568,6 +616,12 @@ struct BusThread {
     vnow: u64,
     log: Option<BufWriter<File>>,
     stats: BusStats,
+    /// The wire, when timed.
+    arbiter: Option<Arbiter<Carried>>,
+    /// Real time: frames committed to the wire whose end of frame the wall clock has not reached.
+    in_flight: VecDeque<OnWire<Carried>>,
+    /// Real time: when the event being handled arrived (ns), the offer time of all its frames.
+    event_ns: u64,
 }
 
 impl BusThread {
@@ -578,8 +632,69 @@ impl BusThread {
         }
     }
 
+    fn now_ns(&self) -> u64 {
+        match self.cfg.clock {
+            BusClock::Wall => self.start.elapsed().as_nanos() as u64,
+            BusClock::Virtual => self.vnow.saturating_mul(1000),
+        }
+    }
+
+    /// Bus time in microseconds: the clock, or the end of the last frame on the wire if later.
+    fn bus_time(&self) -> u64 {
+        let wire = self
+            .arbiter
+            .as_ref()
+            .map_or(0, |a| a.idle_from_ns().div_ceil(1000));
+        self.now().max(wire)
+    }
+
+    /// Hands a frame to the wire at bus time `at_us` (a timed bus: it moves with the next
+    /// [`BusThread::pump`]), or puts it on the bus at once.
+    fn offer(&mut self, from: u64, frame: CanFrame, at_us: u64) {
+        let virtual_clock = self.cfg.clock == BusClock::Virtual;
+        let txtime = self.clients.get(&from).map_or(0, |c| c.txtime);
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            self.put_on_bus(from, &frame, at_us);
+            return;
+        };
+        let at_ns = if virtual_clock {
+            at_us.max(txtime).saturating_mul(1000)
+        } else {
+            self.event_ns
+        };
+        if arbiter.waiting() > 0 || arbiter.idle_from_ns() > at_ns {
+            self.stats.wire_waited += 1;
+        }
+        arbiter.offer(at_ns, &frame, (from, frame));
+        self.stats.wire_queue_peak = self.stats.wire_queue_peak.max(arbiter.waiting() as u64);
+    }
+
+    /// Moves frames over the wire: in lockstep every waiting frame is committed and delivered at
+    /// its end of frame; in real time frames are committed when they start and delivered when the
+    /// wall clock reaches their end.
+    fn pump(&mut self) {
+        let Some(arbiter) = self.arbiter.as_mut() else {
+            return;
+        };
+        let virtual_clock = self.cfg.clock == BusClock::Virtual;
+        let horizon = if virtual_clock {
+            u64::MAX
+        } else {
+            self.start.elapsed().as_nanos() as u64
+        };
+        self.in_flight.extend(arbiter.commit_until(horizon));
+        let now_ns = if virtual_clock { u64::MAX } else { horizon };
+        while self.in_flight.front().is_some_and(|f| f.end_ns <= now_ns) {
+            if let Some(f) = self.in_flight.pop_front() {
+                let (from, frame) = f.item;
+                self.put_on_bus(from, &frame, f.end_ns / 1000);
+            }
+        }
+    }
+
     fn run(mut self, rx: Receiver<Event>) {
         loop {
+            self.event_ns = self.now_ns();
             self.release_due();
             let wait = self.next_wait();
             let event = match rx.recv_timeout(wait) {
@@ -595,7 +710,11 @@ impl BusThread {
             if matches!(event, Event::Shutdown) {
                 break;
             }
+            // One offer time for everything this event carries (one write of a client).
+            self.event_ns = self.now_ns();
             self.handle(event);
+            // After the whole event: the frames one write offered are arbitrated together.
+            self.pump();
             if let Ok(mut s) = self.shared.stats.lock() {
                 *s = self.stats;
             }
@@ -616,8 +735,20 @@ impl BusThread {
         if let Some(until) = self.busoff_until {
             due = Some(due.map_or(until, |d| d.min(until)));
         }
-        due.map_or(idle, |d| {
+        let wait = due.map_or(idle, |d| {
             Duration::from_micros(d.saturating_sub(now)).min(idle)
+        });
+        // The wire's next start or end of frame.
+        let wire = self
+            .in_flight
+            .front()
+            .map(|f| f.end_ns)
+            .into_iter()
+            .chain(self.arbiter.as_ref().and_then(Arbiter::next_start_ns))
+            .min();
+        wire.map_or(wait, |ns| {
+            let now_ns = self.now_ns();
+            wait.min(Duration::from_nanos(ns.saturating_sub(now_ns)))
         })
     }
 
@@ -631,6 +762,7 @@ impl BusThread {
                         out,
                         subscribed: false,
                         dropped: 0,
+                        txtime: 0,
                     },
                 );
                 self.stats.clients = self.clients.len() as u64;
@@ -652,6 +784,14 @@ impl BusThread {
                 self.stats.frames_in += 1;
                 self.accept_frame(client, frame);
             }
+            Event::Control {
+                client: Some(c),
+                command: Ok(ControlCommand::TxTime(us)),
+            } => {
+                if let Some(client) = self.clients.get_mut(&c) {
+                    client.txtime = us;
+                }
+            }
             Event::Control { client, command } => {
                 let reply = match command {
                     Ok(cmd) => self.apply_control(cmd),
@@ -662,6 +802,9 @@ impl BusThread {
                 }
             }
             Event::Unknown => self.stats.unknown_messages += 1,
+            Event::Now(reply) => {
+                let _ = reply.send(self.bus_time());
+            }
             Event::Batch(events) => {
                 for e in events {
                     self.handle(e);
@@ -708,7 +851,8 @@ impl BusThread {
                 return format!(
                     "< stats frames_in={} frames_on_bus={} deliveries={} queue_drops={} \
                      fault_dropped={} fault_corrupted={} fault_delayed={} busoff_dropped={} \
-                     unknown_messages={} clients={} connections={} client_drops={} >",
+                     unknown_messages={} clients={} connections={} client_drops={} \
+                     wire_waited={} wire_queue_peak={} >",
                     s.frames_in,
                     s.frames_on_bus,
                     s.deliveries,
@@ -720,10 +864,15 @@ impl BusThread {
                     s.unknown_messages,
                     s.clients,
                     s.connections,
-                    self.client_drops()
+                    self.client_drops(),
+                    s.wire_waited,
+                    s.wire_queue_peak
                 );
             }
             ControlCommand::Quit => self.shared.quit.store(true, Ordering::SeqCst),
+            // A client's own offer time is set in `handle`; from elsewhere it means nothing.
+            ControlCommand::TxTime(_) => {}
+            ControlCommand::Now => return format!("< now {} >", self.bus_time()),
             ControlCommand::Diag => {
                 let status = self
                     .shared
@@ -799,7 +948,7 @@ impl BusThread {
             }
         }
         self.rules.retain(|r| r.remaining != Some(0));
-        self.put_on_bus(from, &frame, now);
+        self.offer(from, frame, now);
     }
 
     fn release_due(&mut self) {
@@ -811,9 +960,10 @@ impl BusThread {
         while self.delayed.peek().is_some_and(|d| d.due.0.0 <= now) {
             if let Some(d) = self.delayed.pop() {
                 let ts = d.due.0.0;
-                self.put_on_bus(d.from, &d.frame.0, ts.max(now));
+                self.offer(d.from, d.frame.0, ts.max(now));
             }
         }
+        self.pump();
     }
 
     fn put_on_bus(&mut self, from: u64, frame: &CanFrame, ts: u64) {

@@ -126,6 +126,11 @@ impl BusClient {
         self.out.push_str(&send_message(frame));
     }
 
+    /// Queues one raw protocol line (a control verb among the frames: written with them).
+    pub fn queue_line(&mut self, line: &str) {
+        self.out.push_str(line);
+    }
+
     /// Writes the queued frames.
     pub fn flush(&mut self) -> Result<(), ClientError> {
         if !self.out.is_empty() {

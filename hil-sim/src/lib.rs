@@ -15,15 +15,26 @@
 //! - [`slcan_bridge`]: joins an SLCAN serial line (the firmware node under QEMU) to the bus.
 //! - [`wire`]: classic CAN frames' time on the wire (bit stuffing) and arbitration, the model of the
 //!   wire-time figures.
+//! - [`wire_fd`]: CAN FD frames' time on the wire (two bit rates), a model for budgets; the bus
+//!   carries classic frames only.
+//! - [`compute`]: the controller's compute per step on the Cortex-M4F (`firmware/budget.txt`), the
+//!   time a lockstep node's answer takes in bus time.
+//! - [`latency`]: observation to action in bus time from a timed bus's frame trace: wire time,
+//!   compute, queuing.
+//! - [`arbitration`]: the wire as the bus uses it (`hil-sim bus --bitrate`): frames wait while it
+//!   is busy, the lowest identifier goes next, timestamps at the end of frame.
 //!
 //! With feature `socketcan`, [`port`] runs the controller node on a Linux SocketCAN interface
 //! (untested here: the development machines have no `AF_CAN`).
 #![deny(missing_docs)]
 
+pub mod arbitration;
 pub mod bench;
 pub mod bus;
 pub mod client;
+pub mod compute;
 pub mod flash;
+pub mod latency;
 pub mod node;
 pub mod plant;
 #[cfg(feature = "socketcan")]
@@ -31,3 +42,4 @@ pub mod port;
 pub mod protocol;
 pub mod slcan_bridge;
 pub mod wire;
+pub mod wire_fd;

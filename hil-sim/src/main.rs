@@ -11,9 +11,11 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
+use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
 use dex_hil_sim::flash::{Transfer, flash};
-use dex_hil_sim::node::{TimeMode, spawn_controller_node};
+use dex_hil_sim::node::{NodeTiming, TimeMode, spawn_controller_node};
 use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant};
+use dex_hil_sim::wire::{Stuffing, WireConfig};
 
 #[derive(Parser)]
 #[command(
@@ -76,6 +78,9 @@ enum Command {
     },
     /// Closed-loop episodes: plant node and controller node over the bus.
     Run(RunArgs),
+    /// Observation to action in bus time over a timed wire (p50/p99/max: wire time, the
+    /// controller's compute, queuing): lockstep closed-loop episodes, or a recorded trace.
+    Latency(LatencyArgs),
     /// Observation-to-action latency through the bus, period jitter, bus load.
     Bench {
         /// Cycles.
@@ -170,6 +175,8 @@ struct BusArgs {
     /// Fixed kernel send buffer per client socket in bytes (default: autotuned).
     #[arg(long)]
     sndbuf: Option<usize>,
+    #[command(flatten)]
+    wire: WireArgs,
     /// Simulated time: the bus clock moves only on `< time US >` and the controller node polls
     /// on SYNC, for a lockstep plant in another process (`hil-sim plant --connect`).
     #[arg(long)]
@@ -178,6 +185,86 @@ struct BusArgs {
     /// older than this many control periods (the controller's default is 3).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
     watchdog_cycles: u32,
+}
+
+/// Stuff bits of each frame on the wire.
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+enum StuffingArg {
+    /// The frame's own stuff bits (its identifier and data): what the wire carries.
+    Exact,
+    /// The most a frame of its length can carry: the bound of a schedulability analysis.
+    Worst,
+}
+
+/// The wire of the virtual bus, and the controller's compute in bus time.
+#[derive(Args, Clone)]
+struct WireArgs {
+    /// Classic CAN bit rate in bit/s: each frame takes its bits over it, the lowest identifier
+    /// wins when frames wait, timestamps at the end of frame. 0: untimed (a frame's timestamp is
+    /// when it arrived).
+    #[arg(long, default_value_t = 500_000, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
+    bitrate: u32,
+    /// Stuff bits of each frame.
+    #[arg(long, value_enum, default_value_t = StuffingArg::Exact)]
+    stuffing: StuffingArg,
+    /// Lockstep on a timed wire: the controller's instructions per control step, its answer
+    /// leaving that long after the observation (default: `controller_step` of
+    /// firmware/budget.txt, as built).
+    #[arg(long)]
+    step_instructions: Option<u64>,
+    /// The controller's clock in Hz, one instruction per cycle (the STM32F4's 168 MHz).
+    #[arg(long, default_value_t = DEFAULT_CPU_HZ)]
+    cpu_hz: u64,
+}
+
+impl WireArgs {
+    /// The wire, or `None` when untimed.
+    fn wire(&self) -> Option<WireConfig> {
+        (self.bitrate > 0).then_some(WireConfig {
+            bitrate: self.bitrate,
+            stuffing: match self.stuffing {
+                StuffingArg::Exact => Stuffing::Exact,
+                StuffingArg::Worst => Stuffing::WorstCase,
+            },
+        })
+    }
+
+    /// The controller's compute per step.
+    fn compute(&self) -> Result<StepCompute> {
+        Ok(StepCompute::new(self.step_instructions, self.cpu_hz)?)
+    }
+
+    /// A node's timing: in lockstep on a timed wire its answers take the compute.
+    fn node_timing(&self, mode: TimeMode) -> Result<NodeTiming> {
+        let timed = mode == TimeMode::Lockstep && self.bitrate > 0;
+        Ok(NodeTiming {
+            mode,
+            step_compute_us: if timed { self.compute()?.us() } else { 0 },
+        })
+    }
+}
+
+/// `hil-sim latency`: observation to action in bus time.
+#[derive(Args)]
+struct LatencyArgs {
+    /// Analyse this candump log of a timed lockstep run (`hil-sim run --log`, with the same wire
+    /// and compute flags) instead of running episodes.
+    #[arg(long)]
+    trace: Option<PathBuf>,
+    /// Policy file of the run (default: random weights, 44-256-256-9 on the cell's layout, the
+    /// size firmware/budget.txt measures).
+    #[arg(long)]
+    policy: Option<PathBuf>,
+    #[command(flatten)]
+    episodes: EpisodeArgs,
+    #[command(flatten)]
+    wire: WireArgs,
+    /// The run's candump log (default: a file in the temporary folder, removed afterwards).
+    #[arg(long)]
+    log: Option<PathBuf>,
+    /// The controller's node id.
+    #[arg(long, default_value_t = 0x10, value_parser = parse_node_id)]
+    node: u8,
 }
 
 /// The episodes of `hil-sim plant` and `hil-sim run`: how many, from which starts, on which plant.
@@ -214,6 +301,8 @@ struct RunArgs {
     /// candump-format log.
     #[arg(long)]
     log: Option<PathBuf>,
+    #[command(flatten)]
+    wire: WireArgs,
 }
 
 fn main() -> Result<()> {
@@ -225,6 +314,7 @@ fn main() -> Result<()> {
             actions,
         } => plant_command(connect, &episodes, actions),
         Command::Run(args) => run_command(&args),
+        Command::Latency(args) => latency_command(&args),
         Command::Flash {
             connect,
             node,
@@ -261,6 +351,7 @@ fn bus_command(args: BusArgs) -> Result<()> {
         log: args.log,
         queue_depth: args.queue,
         send_buffer: args.sndbuf,
+        wire: args.wire.wire(),
         clock: if args.lockstep {
             BusClock::Virtual
         } else {
@@ -270,6 +361,11 @@ fn bus_command(args: BusArgs) -> Result<()> {
     })?;
     let stop = Arc::new(AtomicBool::new(false));
     let mut nodes = Vec::new();
+    let timing = args.wire.node_timing(if args.lockstep {
+        TimeMode::Lockstep
+    } else {
+        TimeMode::RealTime
+    })?;
     if args.controller || args.policy.is_some() || !args.nodes.is_empty() {
         let bytes = match &args.policy {
             Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
@@ -292,11 +388,7 @@ fn bus_command(args: BusArgs) -> Result<()> {
                     watchdog_cycles: args.watchdog_cycles,
                     ..dex_runtime::ControllerConfig::default()
                 },
-                if args.lockstep {
-                    TimeMode::Lockstep
-                } else {
-                    TimeMode::RealTime
-                },
+                timing,
                 Arc::clone(&stop),
                 (k == 0).then(|| bus.status_slot()),
             )?;
@@ -393,22 +485,62 @@ fn flash_command(
 fn run_command(args: &RunArgs) -> Result<()> {
     let bytes = std::fs::read(&args.policy)
         .with_context(|| format!("reading {}", args.policy.display()))?;
-    let mut plant = make_plant(
-        args.episodes.plant,
-        &args.episodes.task,
-        args.episodes.steps,
+    let run = closed_loop(
+        bytes,
+        &args.episodes,
+        &args.wire,
+        args.realtime,
+        args.log.clone(),
+        &mut print_episode,
     )?;
+    println!(
+        "success {}/{} ({:.1}%) mean return {:.4} mode {}",
+        run.successes,
+        args.episodes.episodes,
+        100.0 * f64::from(run.successes) / f64::from(args.episodes.episodes.max(1)),
+        run.total_return / f64::from(args.episodes.episodes.max(1)),
+        if args.realtime {
+            "realtime"
+        } else {
+            "lockstep"
+        }
+    );
+    println!("controller: {}", run.controller);
+    println!("bus: {:?}", run.bus);
+    Ok(())
+}
+
+/// What a closed-loop run reports.
+struct ClosedLoop {
+    successes: u32,
+    total_return: f64,
+    controller: String,
+    bus: dex_hil_sim::bus::BusStats,
+}
+
+/// Closed-loop episodes of the policy file `bytes`: plant node and controller node over a bus
+/// in this process (lockstep unless `realtime`).
+fn closed_loop(
+    bytes: Vec<u8>,
+    episodes: &EpisodeArgs,
+    wire: &WireArgs,
+    realtime: bool,
+    log: Option<PathBuf>,
+    on_episode: &mut dyn FnMut(u32, &dex_hil_sim::plant::EpisodeReport),
+) -> Result<ClosedLoop> {
+    let mut plant = make_plant(episodes.plant, &episodes.task, episodes.steps)?;
     let bus = Bus::start(BusConfig {
-        clock: if args.realtime {
+        clock: if realtime {
             BusClock::Wall
         } else {
             BusClock::Virtual
         },
-        log: args.log.clone(),
+        log,
+        wire: wire.wire(),
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));
-    let mode = if args.realtime {
+    let mode = if realtime {
         TimeMode::RealTime
     } else {
         TimeMode::Lockstep
@@ -418,11 +550,11 @@ fn run_command(args: &RunArgs) -> Result<()> {
         bus.addr(),
         Some(bytes),
         dex_runtime::ControllerConfig::default(),
-        mode,
+        wire.node_timing(mode)?,
         Arc::clone(&stop),
         Some(Arc::clone(&status)),
     )?;
-    let timing = if args.realtime {
+    let timing = if realtime {
         PlantTiming::RealTime
     } else {
         PlantTiming::Lockstep
@@ -432,10 +564,10 @@ fn run_command(args: &RunArgs) -> Result<()> {
         node.start_controller()?;
         let r = node.episodes(
             plant.as_mut(),
-            args.episodes.episodes,
-            args.episodes.seed,
+            episodes.episodes,
+            episodes.seed,
             false,
-            &mut print_episode,
+            on_episode,
         )?;
         if !node.emergencies().is_empty() {
             println!("emergencies: {:04X?}", node.emergencies());
@@ -444,24 +576,94 @@ fn run_command(args: &RunArgs) -> Result<()> {
     })();
     stop.store(true, Ordering::SeqCst);
     let _ = node.join();
-    let (successes, total) = result?;
-    println!(
-        "success {successes}/{} ({:.1}%) mean return {:.4} mode {}",
-        args.episodes.episodes,
-        100.0 * f64::from(successes) / f64::from(args.episodes.episodes.max(1)),
-        total / f64::from(args.episodes.episodes.max(1)),
-        if args.realtime {
-            "realtime"
-        } else {
-            "lockstep"
-        }
-    );
-    println!(
-        "controller: {}",
-        status.lock().map(|s| s.clone()).unwrap_or_default()
-    );
-    println!("bus: {:?}", bus.stats());
+    let (successes, total_return) = result?;
+    let controller = status.lock().map(|s| s.clone()).unwrap_or_default();
+    let stats = bus.stats();
     bus.shutdown();
+    Ok(ClosedLoop {
+        successes,
+        total_return,
+        controller,
+        bus: stats,
+    })
+}
+
+fn latency_command(args: &LatencyArgs) -> Result<()> {
+    let Some(wire) = args.wire.wire() else {
+        bail!("latency in bus time needs a timed wire: --bitrate above 0");
+    };
+    let compute = args.wire.compute()?;
+    let text = match &args.trace {
+        Some(path) => {
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?
+        }
+        None => {
+            let bytes = match &args.policy {
+                Some(p) => std::fs::read(p).with_context(|| format!("reading {}", p.display()))?,
+                None => dex_runtime::synthetic::jaco_policy(&[256, 256], 1)?,
+            };
+            let path = args.log.clone().unwrap_or_else(|| {
+                std::env::temp_dir().join(format!("hil-sim-latency-{}.log", std::process::id()))
+            });
+            let run = closed_loop(
+                bytes,
+                &args.episodes,
+                &args.wire,
+                false,
+                Some(path.clone()),
+                &mut |_, _| {},
+            )?;
+            println!(
+                "run: {} episodes, success {}/{}, controller: {}",
+                args.episodes.episodes, run.successes, args.episodes.episodes, run.controller
+            );
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            if args.log.is_none() {
+                let _ = std::fs::remove_file(&path);
+            }
+            text
+        }
+    };
+    let trace = dex_hil_sim::latency::parse_trace(&text)?;
+    let report =
+        dex_hil_sim::latency::analyse(&trace, args.node, wire, compute.ns().div_ceil(1000) * 1000)?;
+    println!(
+        "wire: classic {} kbit/s, {} stuffing; controller compute: {} instructions per step at {} MHz \
+         = {:.3} ms",
+        wire.bitrate / 1000,
+        match wire.stuffing {
+            Stuffing::Exact => "exact",
+            Stuffing::WorstCase => "worst-case",
+        },
+        compute.instructions,
+        compute.cpu_hz as f64 / 1e6,
+        compute.ns() as f64 / 1e6
+    );
+    println!(
+        "{} observations answered, {} unanswered",
+        report.cycles.len(),
+        report.unanswered
+    );
+    println!("| part | p50 | p99 | max |");
+    println!("|---|---:|---:|---:|");
+    let ms = |p: dex_hil_sim::bench::Percentiles| {
+        format!(
+            "{:.3} ms | {:.3} ms | {:.3} ms |",
+            p.p50 / 1e3,
+            p.p99 / 1e3,
+            p.max / 1e3
+        )
+    };
+    println!("| observation to action | {}", ms(report.total_us()));
+    println!("| wire time (both groups) | {}", ms(report.wire_us()));
+    println!(
+        "| - observation (15 frames) | {}",
+        ms(report.observation_wire_us())
+    );
+    println!("| - actions (3 frames) | {}", ms(report.action_wire_us()));
+    println!("| controller compute | {}", ms(report.compute_us()));
+    println!("| queuing | {}", ms(report.queuing_us()));
     Ok(())
 }
 

@@ -51,6 +51,28 @@ pub enum TimeMode {
     Lockstep,
 }
 
+/// How the node gets time, and (lockstep) how long its control step takes in bus time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NodeTiming {
+    /// Clock and polling.
+    pub mode: TimeMode,
+    /// Lockstep on a timed bus: an answer that evaluated the policy is offered to the wire this
+    /// many microseconds after the frame that caused it (the controller's compute on its target,
+    /// e.g. [`crate::compute::StepCompute`]); every other answer at that frame's time. Real time
+    /// ignores it (the host's own compute is what it is).
+    pub step_compute_us: u64,
+}
+
+impl From<TimeMode> for NodeTiming {
+    /// No compute time in bus time.
+    fn from(mode: TimeMode) -> Self {
+        NodeTiming {
+            mode,
+            step_compute_us: 0,
+        }
+    }
+}
+
 /// Errors of the controller node.
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
@@ -144,7 +166,7 @@ pub fn run_controller_node(
     port: &mut impl NodePort,
     policy: Option<&[u8]>,
     cfg: ControllerConfig,
-    mode: TimeMode,
+    timing: impl Into<NodeTiming>,
     stop: &AtomicBool,
     status: Option<Arc<Mutex<String>>>,
 ) -> Result<NodeReport, NodeError> {
@@ -180,9 +202,12 @@ pub fn run_controller_node(
         slots: &mut slots,
         counters: &mut counters,
     };
-    let result = match mode {
+    let timing = timing.into();
+    let result = match timing.mode {
         TimeMode::RealTime => real_time_loop(port, &mut node, cfg.period_us, stop, &publish),
-        TimeMode::Lockstep => lockstep_loop(port, &mut node, stop, &publish),
+        TimeMode::Lockstep => {
+            lockstep_loop(port, &mut node, timing.step_compute_us, stop, &publish)
+        }
     };
     match result {
         Ok(()) | Err(ClientError::Closed) => {}
@@ -302,6 +327,7 @@ fn real_time_loop(
 fn lockstep_loop(
     port: &mut impl NodePort,
     node: &mut Node<'_, '_>,
+    step_compute_us: u64,
     stop: &AtomicBool,
     publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashCounters),
 ) -> Result<(), ClientError> {
@@ -310,15 +336,22 @@ fn lockstep_loop(
         match port.receive_timeout(Duration::from_millis(50))? {
             Some(Received::Frame(frame, ts)) => {
                 clock.set(ts);
+                let evaluations = node.controller.diagnostics().evaluations;
                 let out = if frame.standard_id() == Some(SYNC_ID) {
                     node.controller.poll_slots(&clock, node.slots)
                 } else {
                     dispatch(node, &frame, &clock)
                 };
+                if !out.is_empty() {
+                    // On a timed bus the answer leaves after the compute it took.
+                    let computed = node.controller.diagnostics().evaluations != evaluations;
+                    port.offer_at(ts + if computed { step_compute_us } else { 0 });
+                }
                 send(port, &out)?;
             }
             Some(Received::Error(class, ts)) => {
                 clock.set(ts);
+                port.offer_at(ts);
                 for out in on_error_frame(node.controller, class) {
                     send(port, &out)?;
                 }
@@ -339,6 +372,11 @@ pub trait NodePort {
     fn flush(&mut self) -> Result<(), ClientError>;
     /// The next frame or error frame, waiting at most `timeout`.
     fn receive_timeout(&mut self, timeout: Duration) -> Result<Option<Received>, ClientError>;
+    /// Lockstep: the frames queued next are offered to the wire at bus time `us` (a timed
+    /// virtual bus's `< txtime US >`); a real interface sends when it sends, so by default nothing.
+    fn offer_at(&mut self, us: u64) {
+        let _ = us;
+    }
 }
 
 impl NodePort for BusClient {
@@ -353,6 +391,10 @@ impl NodePort for BusClient {
     fn receive_timeout(&mut self, timeout: Duration) -> Result<Option<Received>, ClientError> {
         BusClient::receive_timeout(self, timeout)
     }
+
+    fn offer_at(&mut self, us: u64) {
+        self.queue_line(&format!("< txtime {us} >"));
+    }
 }
 
 /// Connects a controller node (settings `cfg`) to the bus at `addr` and runs it on a new thread.
@@ -360,13 +402,16 @@ pub fn spawn_controller_node(
     addr: std::net::SocketAddr,
     policy: Option<Vec<u8>>,
     cfg: ControllerConfig,
-    mode: TimeMode,
+    timing: impl Into<NodeTiming>,
     stop: Arc<AtomicBool>,
     status: Option<Arc<Mutex<String>>>,
 ) -> Result<std::thread::JoinHandle<Result<NodeReport, NodeError>>, NodeError> {
     let mut port = BusClient::connect(addr, "vcan0")?;
+    let timing = timing.into();
     std::thread::Builder::new()
         .name("controller-node".into())
-        .spawn(move || run_controller_node(&mut port, policy.as_deref(), cfg, mode, &stop, status))
+        .spawn(move || {
+            run_controller_node(&mut port, policy.as_deref(), cfg, timing, &stop, status)
+        })
         .map_err(|e| NodeError::Bus(ClientError::Io(e)))
 }

@@ -461,7 +461,32 @@ impl<'b> PlantNode<'b> {
         self.client
             .queue(&nmt_frame(NmtCommand::Start, self.node_id));
         self.client.flush()?;
-        self.wait_state(0x05, "operational")
+        self.wait_state(0x05, "operational")?;
+        self.catch_up()
+    }
+
+    /// Lockstep: when the bus time is ahead of the plant's (a timed bus after a flash: its frames'
+    /// time on the wire), the next cycle starts at the first period boundary at or after it. On an
+    /// untimed bus, whose clock is the plant's own, nothing changes.
+    fn catch_up(&mut self) -> Result<(), PlantError> {
+        if self.timing != PlantTiming::Lockstep {
+            return Ok(());
+        }
+        let now = match &mut self.time {
+            TimeSetter::InProcess(bus) => bus.bus_time(),
+            TimeSetter::Remote(c) => {
+                let words = c.control("now")?;
+                match words.as_slice() {
+                    [verb, us] if verb == "now" => us.parse().unwrap_or(0),
+                    _ => 0,
+                }
+            }
+        };
+        // The next cycle starts at the first period boundary at or after the bus time.
+        let period = u64::from(CONTROL_PERIOD_US);
+        let before_next = now.div_ceil(period).saturating_sub(1) * period;
+        self.sim_us = self.sim_us.max(before_next);
+        Ok(())
     }
 
     /// Runs `episodes` episodes, episode `e` from `episode_seed(seed, e)` as `trainer eval` does,

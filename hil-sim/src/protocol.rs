@@ -23,7 +23,8 @@ pub enum Request {
     RawMode,
     /// `< send ID LEN BYTES... >`.
     Send(CanFrame),
-    /// A control verb of this bus: `< fault ... >`, `< stats >`, `< diag >`, `< time US >`.
+    /// A control verb of this bus: `< fault ... >`, `< stats >`, `< diag >`, `< time US >`,
+    /// `< txtime US >`, `< now >`, `< quit >`.
     Control(Vec<String>),
     /// Anything else (ignored, counted).
     Unknown,
@@ -106,7 +107,12 @@ pub fn parse_request(text: &str) -> Request {
         ["send", id, len, bytes @ ..] => {
             parse_send(id, len, bytes).map_or(Request::Unknown, Request::Send)
         }
-        [verb, ..] if matches!(*verb, "fault" | "stats" | "diag" | "time" | "quit") => {
+        [verb, ..]
+            if matches!(
+                *verb,
+                "fault" | "stats" | "diag" | "time" | "txtime" | "now" | "quit"
+            ) =>
+        {
             Request::Control(words.iter().map(|w| (*w).to_string()).collect())
         }
         _ => Request::Unknown,
@@ -216,12 +222,51 @@ pub fn candump_line(channel: &str, frame: &CanFrame, ts_us: u64) -> String {
     s
 }
 
+/// Parses a line that [`candump_line`] wrote: `(SECONDS.MICROS) CHANNEL ID#DATAHEX` into the
+/// bus time in microseconds and the frame; `None` for anything else.
+pub fn parse_candump_line(line: &str) -> Option<(u64, CanFrame)> {
+    let mut words = line.split_ascii_whitespace();
+    let ts = parse_ts(words.next()?.strip_prefix('(')?.strip_suffix(')')?)?;
+    let _channel = words.next()?;
+    let (id, data) = words.next()?.split_once('#')?;
+    if words.next().is_some() {
+        return None;
+    }
+    let frame = CanFrame::new(parse_id(id)?, &decode_hex(data)?)?;
+    Some((ts, frame))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn std_frame(id: u16, data: &[u8]) -> CanFrame {
         CanFrame::standard(id, data).unwrap_or_else(|| panic!("bad frame"))
+    }
+
+    #[test]
+    fn candump_lines_parse_back() {
+        let f = std_frame(0x280, &[0x91, 0x10, 0x0A]);
+        let line = candump_line("vcan0", &f, 1_050_000);
+        assert_eq!(parse_candump_line(&line), Some((1_050_000, f)));
+        let e = CanFrame::new(
+            embedded_can::ExtendedId::new(0x1ABC_DEF0).expect("29 bits"),
+            &[],
+        )
+        .expect("valid frame");
+        assert_eq!(
+            parse_candump_line(&candump_line("vcan0", &e, 7)),
+            Some((7, e))
+        );
+        for bad in [
+            "",
+            "(1.0) vcan0",
+            "(x) vcan0 123#00",
+            "(1.0) vcan0 123#0",
+            "1.0 vcan0 123#",
+        ] {
+            assert_eq!(parse_candump_line(bad), None, "{bad}");
+        }
     }
 
     #[test]

@@ -1,13 +1,15 @@
 //! Time on the wire of classic CAN frames: each frame's length in bits (worst-case or exact bit
 //! stuffing) and a bus that sends one frame at a time, the lowest identifier first among those
-//! waiting (arbitration). The model behind the wire-time figures of docs/benchmarks.md; the virtual
-//! bus itself does not use it yet (issue #30).
+//! waiting (arbitration). The model behind the wire-time figures of docs/benchmarks.md, and behind
+//! the virtual bus's timestamps ([`crate::arbitration`], `hil-sim bus --bitrate`).
 //!
 //! A classic data frame with an 11-bit identifier and `n` data bytes has `34 + 8n` bits from the
 //! start of frame to the end of the CRC, the part bit stuffing applies to (a complementary bit after
 //! five equal ones), then 13 fixed bits: CRC delimiter, ACK slot and delimiter, 7 bits of end of
 //! frame, 3 of intermission. Worst-case stuffing adds `floor((34 + 8n - 1) / 4)` bits: 135 bits
 //! for 8 data bytes, 270 us at 500 kbit/s.
+
+use embedded_can::{Frame, Id};
 
 /// Bits of a classic frame with an 11-bit identifier and `data_len` bytes (at most 8), without
 /// stuffing (intermission included).
@@ -32,18 +34,24 @@ pub fn exact_bits(id: u16, data: &[u8]) -> u32 {
     let data = &data[..data.len().min(8)];
     let mut bits: Vec<bool> = Vec::with_capacity(34 + 64);
     bits.push(false); // start of frame
-    for k in (0..11).rev() {
-        bits.push((id >> k) & 1 == 1);
-    }
+    push_bits(&mut bits, u32::from(id), 11);
     bits.extend([false, false, false]); // RTR (data frame), IDE (standard), r0
-    for k in (0..4).rev() {
-        bits.push((data.len() >> k) & 1 == 1);
-    }
+    push_bits(&mut bits, data.len() as u32, 4);
     for byte in data {
-        for k in (0..8).rev() {
-            bits.push((byte >> k) & 1 == 1);
-        }
+        push_bits(&mut bits, u32::from(*byte), 8);
     }
+    unstuffed_bits(data.len()) + stuff_bits_with_crc(bits)
+}
+
+/// Appends the low `n` bits of `value`, most significant first.
+fn push_bits(bits: &mut Vec<bool>, value: u32, n: u32) {
+    for k in (0..n).rev() {
+        bits.push((value >> k) & 1 == 1);
+    }
+}
+
+/// Appends the CRC-15 of `bits` and counts the stuff bits of the whole run.
+fn stuff_bits_with_crc(mut bits: Vec<bool>) -> u32 {
     let mut crc: u16 = 0;
     for &b in &bits {
         let top = (crc >> 14) & 1 == 1;
@@ -52,9 +60,7 @@ pub fn exact_bits(id: u16, data: &[u8]) -> u32 {
             crc ^= 0x4599;
         }
     }
-    for k in (0..15).rev() {
-        bits.push((crc >> k) & 1 == 1);
-    }
+    push_bits(&mut bits, u32::from(crc), 15);
     let mut stuffed = 0;
     let (mut run, mut last) = (0, None);
     for b in bits {
@@ -71,7 +77,108 @@ pub fn exact_bits(id: u16, data: &[u8]) -> u32 {
             run = 1;
         }
     }
-    unstuffed_bits(data.len()) + stuffed
+    stuffed
+}
+
+/// How the bus counts a frame's stuff bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Stuffing {
+    /// The frame's own stuff bits (its bit stream built and counted): what the wire really
+    /// carries for this identifier and data, as a bus analyser would time it.
+    #[default]
+    Exact,
+    /// The most stuff bits a frame of its length can carry: the bound a schedulability analysis
+    /// uses.
+    WorstCase,
+}
+
+/// The wire of a classic CAN bus: bit rate and how stuff bits are counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WireConfig {
+    /// Bits per second (classic CAN: at most 1,000,000).
+    pub bitrate: u32,
+    /// Stuff bits of each frame.
+    pub stuffing: Stuffing,
+}
+
+impl Default for WireConfig {
+    /// The classic 500 kbit/s of issue #30, each frame's exact stuffing.
+    fn default() -> Self {
+        WireConfig {
+            bitrate: 500_000,
+            stuffing: Stuffing::Exact,
+        }
+    }
+}
+
+impl WireConfig {
+    /// This frame's bits on this wire.
+    pub fn bits(&self, frame: &impl Frame) -> u32 {
+        frame_bits(frame, self.stuffing)
+    }
+
+    /// This frame's time on this wire, start of frame to the end of its intermission (ns).
+    pub fn frame_ns(&self, frame: &impl Frame) -> u64 {
+        bits_ns(self.bits(frame), self.bitrate)
+    }
+}
+
+/// Unstuffed bits from the start of frame to the end of the CRC (where stuffing applies) of a
+/// classic frame: 34 + 8n with an 11-bit identifier, 54 + 8n with a 29-bit one (n data bytes;
+/// none for a remote frame).
+const fn stuffable_bits(extended: bool, data_len: usize) -> u32 {
+    (if extended { 54 } else { 34 }) + 8 * data_len as u32
+}
+
+/// The bits of a classic frame (standard or extended identifier, data or remote) with the given
+/// stuffing, intermission included: the stuffable part, 13 fixed bits (CRC delimiter, ACK slot
+/// and delimiter, end of frame, intermission), and its stuff bits.
+pub fn frame_bits(frame: &impl Frame, stuffing: Stuffing) -> u32 {
+    let remote = frame.is_remote_frame();
+    let data: &[u8] = if remote { &[] } else { frame.data() };
+    let data = &data[..data.len().min(8)];
+    let (extended, raw) = match frame.id() {
+        Id::Standard(s) => (false, u32::from(s.as_raw())),
+        Id::Extended(e) => (true, e.as_raw()),
+    };
+    let stuffable = stuffable_bits(extended, data.len());
+    let stuff = match stuffing {
+        Stuffing::WorstCase => (stuffable - 1) / 4,
+        Stuffing::Exact => {
+            let mut bits: Vec<bool> = Vec::with_capacity(stuffable as usize);
+            bits.push(false); // start of frame
+            if extended {
+                push_bits(&mut bits, raw >> 18, 11);
+                bits.extend([true, true]); // SRR, IDE
+                push_bits(&mut bits, raw & 0x3_FFFF, 18);
+                bits.extend([remote, false, false]); // RTR, r1, r0
+            } else {
+                push_bits(&mut bits, raw, 11);
+                bits.extend([remote, false, false]); // RTR, IDE (standard), r0
+            }
+            push_bits(&mut bits, frame.dlc().min(15) as u32, 4);
+            for byte in data {
+                push_bits(&mut bits, u32::from(*byte), 8);
+            }
+            stuff_bits_with_crc(bits)
+        }
+    };
+    stuffable + 13 + stuff
+}
+
+/// The frame's place in arbitration, lower wins: the arbitration field's bits as a number
+/// (11-bit base identifier, then RTR or SRR, IDE, the 18 identifier extension bits and the
+/// extended frame's RTR). A standard data frame beats a remote frame and an extended frame of
+/// the same base identifier, as on the wire (a dominant bit is 0).
+pub fn arbitration_key(frame: &impl Frame) -> u32 {
+    let remote = u32::from(frame.is_remote_frame());
+    match frame.id() {
+        Id::Standard(s) => (u32::from(s.as_raw()) << 21) | (remote << 20),
+        Id::Extended(e) => {
+            let raw = e.as_raw();
+            ((raw >> 18) << 21) | (1 << 20) | (1 << 19) | ((raw & 0x3_FFFF) << 1) | remote
+        }
+    }
 }
 
 /// Nanoseconds `bits` take at `bitrate` bits per second (rounded up).
@@ -155,6 +262,48 @@ mod tests {
             }
         }
         assert!(exact_bits(0x000, &[0; 8]) > exact_bits(0x2AA, &[0x55; 8]));
+    }
+
+    #[test]
+    fn frame_bits_cover_standard_and_extended_frames() {
+        use dex_runtime::can::CanFrame;
+        use embedded_can::ExtendedId;
+        for (id, fill) in [
+            (0x000u16, 0x00u8),
+            (0x123, 0xA5),
+            (0x7FF, 0xFF),
+            (0x210, 0x3C),
+        ] {
+            let f = CanFrame::standard(id, &[fill; 8]).expect("valid");
+            assert_eq!(frame_bits(&f, Stuffing::Exact), exact_bits(id, &[fill; 8]));
+            assert_eq!(frame_bits(&f, Stuffing::WorstCase), worst_case_bits(8));
+        }
+        // 29-bit identifiers: 20 more bits (SRR, IDE, 18 extension bits), 67 + 8n unstuffed.
+        let e = CanFrame::new(ExtendedId::new(0x1ABC_DEF0).expect("29 bits"), &[0x55; 4])
+            .expect("valid");
+        assert_eq!(
+            frame_bits(&e, Stuffing::WorstCase),
+            67 + 32 + (54 + 32 - 1) / 4
+        );
+        let exact = frame_bits(&e, Stuffing::Exact);
+        assert!(
+            (67 + 32..=67 + 32 + (54 + 32 - 1) / 4).contains(&exact),
+            "{exact}"
+        );
+    }
+
+    #[test]
+    fn arbitration_follows_the_arbitration_field() {
+        use dex_runtime::can::CanFrame;
+        use embedded_can::ExtendedId;
+        let std = |id| CanFrame::standard(id, &[]).expect("valid");
+        let ext = |id| CanFrame::new(ExtendedId::new(id).expect("29 bits"), &[]).expect("valid");
+        assert!(arbitration_key(&std(0x100)) < arbitration_key(&std(0x101)));
+        // Same 11-bit base: the standard frame wins (SRR and IDE recessive in the extended one).
+        assert!(arbitration_key(&std(0x100)) < arbitration_key(&ext(0x100 << 18)));
+        // A lower base wins whatever follows.
+        assert!(arbitration_key(&ext(0x0FF << 18 | 0x3_FFFF)) < arbitration_key(&std(0x100)));
+        assert!(arbitration_key(&ext(1)) < arbitration_key(&ext(2)));
     }
 
     #[test]

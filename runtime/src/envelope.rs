@@ -16,7 +16,8 @@
 //! the simulation's MJCF), not taken from the plant's pinch-to-brick vectors, which depend on the
 //! bricks and would trust the plant's own kinematics.
 //!
-//! How `s` is found (bounded work: at most 2 x ([`BISECTION_STEPS`] + 1) + 1 forward kinematics):
+//! How `s` is found (bounded work: at most 2 x ([`BISECTION_STEPS`] + 1) + 1 forward kinematics,
+//! each without trigonometry; one f32 sine and cosine per joint and per evaluation):
 //!
 //! 1. Acceleration. The change of joint `j` from its measured velocity `v_j` to `s * u_j` must stay
 //!    within `d_j = max_accel_j * period`; the admissible `s` form an interval, and `s_acc` is its
@@ -35,11 +36,20 @@
 //!    interval, the acceleration limit is exceeded for that cycle and counted
 //!    ([`EnvelopeStats::accel_overridden`]).
 //!
+//! The kinematics of step 2: every candidate moves the angles along a line from `q`, so the
+//! joints' sines and cosines are taken once per cycle ([`JointTrig::of`]), each candidate's by
+//! angle addition with its offset's sine and cosine ([`JointTrig::shifted`]; every sine and cosine
+//! by [`crate::kinematics::sin_cos`], f32 arithmetic only), and the pinch site from those by 3x3 matrices
+//! ([`pinch_position_trig`]). Nothing is linearised: every candidate's pinch site is its forward
+//! kinematics, exact up to f32 rounding (within 4e-7 m of an f64 evaluation of the same chain,
+//! `runtime/tests/kinematics.rs`), so the guarantees hold as stated for every chosen `s`. The
+//! bisection stops checking a candidate at the first broken constraint.
+//!
 //! Everything is f32 with `libm`, in a fixed order: the host and the Cortex-M4F give the same bits.
 
 use crate::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
 use crate::jaco_kinematics::{JOINT_LIMITED, JOINT_RANGE};
-use crate::kinematics::{ARM_JOINTS, pinch_position};
+use crate::kinematics::{ARM_JOINTS, JointTrig, pinch_position_trig};
 
 /// Halvings of the position search: `s` is found to 1/256 (conservatively: the admissible end).
 pub const BISECTION_STEPS: u32 = 8;
@@ -496,16 +506,18 @@ impl Envelope {
             limits |= status::ACCELERATION;
             self.stats.turns = self.stats.turns.saturating_add(1);
         }
-        // 2. Position: the largest admissible s in [0, s_acc].
-        let now = pinch_excess(&cfg, &pinch_position(q));
+        // 2. Position: the largest admissible s in [0, s_acc]. The joints' sines and cosines are
+        // taken once; every candidate's angles are offsets from them (`JointTrig::shifted`).
+        let trig = JointTrig::of(q);
+        let now = pinch_excess(&cfg, &pinch_position_trig(&trig));
         let mut s = s_acc;
-        let first = self.violations(q, &cmd, s, &now);
+        let first = self.violations(q, &trig, &cmd, s, &now, true);
         if first != 0 {
             limits |= first;
             let (mut ok, mut bad) = (0.0f32, s_acc);
             for _ in 0..BISECTION_STEPS {
                 let mid = 0.5 * (ok + bad);
-                if self.violations(q, &cmd, mid, &now) == 0 {
+                if self.violations(q, &trig, &cmd, mid, &now, false) == 0 {
                     ok = mid;
                 } else {
                     bad = mid;
@@ -519,35 +531,47 @@ impl Envelope {
         (cmd, s, limits)
     }
 
-    /// The [`status`] bits of the constraints that `s * cmd` breaks over the next period.
+    /// The [`status`] bits of the constraints that `s * cmd` breaks over the next period (`trig`:
+    /// the sines and cosines of `q`). With `all` false it returns at the first broken kind
+    /// (joint limits, then the pinch site after the period, then after braking): the bisection
+    /// only asks whether any is broken.
     fn violations(
         &self,
         q: &[f32; ARM_JOINTS],
+        trig: &JointTrig,
         cmd: &[f32; ARM_JOINTS],
         s: f32,
         now: &[f32; 7],
+        all: bool,
     ) -> u8 {
         let cfg = &self.cfg;
         let dt = self.period_s;
-        let mut after = [0.0f32; ARM_JOINTS];
-        let mut stopped = [0.0f32; ARM_JOINTS];
+        // The offsets from q after the period and at the braking point.
+        let mut d_after = [0.0f32; ARM_JOINTS];
+        let mut d_stopped = [0.0f32; ARM_JOINTS];
         let mut bits = 0u8;
         for j in 0..ARM_JOINTS {
             let w = s * cmd[j];
-            after[j] = q[j] + w * dt;
-            stopped[j] = after[j] + w * libm::fabsf(w) / (2.0 * cfg.max_accel[j]);
+            let brake = w * libm::fabsf(w) / (2.0 * cfg.max_accel[j]);
+            d_after[j] = w * dt;
+            d_stopped[j] = d_after[j] + brake;
+            let after = q[j] + d_after[j];
+            let stopped = after + brake;
             if cfg.joint_limited[j] {
                 let over_now = (q[j] - cfg.joint_max[j]).max(0.0);
                 let under_now = (cfg.joint_min[j] - q[j]).max(0.0);
-                for x in [after[j], stopped[j]] {
+                for x in [after, stopped] {
                     if x - cfg.joint_max[j] > over_now || cfg.joint_min[j] - x > under_now {
                         bits |= status::JOINT_LIMIT;
                     }
                 }
             }
         }
-        for qs in [&after, &stopped] {
-            let e = pinch_excess(cfg, &pinch_position(qs));
+        for d in [&d_after, &d_stopped] {
+            if bits != 0 && !all {
+                return bits;
+            }
+            let e = pinch_excess(cfg, &pinch_position_trig(&trig.shifted(d)));
             for (k, (&x, &n)) in e.iter().zip(now).enumerate() {
                 if x > n.max(0.0) {
                     bits |= if k == 0 {

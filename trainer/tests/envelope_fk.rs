@@ -2,7 +2,7 @@
 //! scene) against MuJoCo's pinch-site pose, and the generated constants against the model.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
-use dex_runtime::kinematics::pinch_pose;
+use dex_runtime::kinematics::{JointTrig, pinch_pose, pinch_position_trig};
 use dex_trainer::env::Scene;
 use dex_trainer::env::fk_constants::runtime_constants;
 use dex_trainer::env::rng::SeedRng;
@@ -36,7 +36,7 @@ fn f32_pinch_pose_matches_mujoco_over_1000_configurations() {
         dex_runtime::jaco_kinematics::JOINT_RANGE,
     );
     let mut rng = SeedRng::new(17);
-    let (mut worst_pos, mut worst_rot) = (0.0f64, 0.0f64);
+    let (mut worst_pos, mut worst_rot, mut worst_trig) = (0.0f64, 0.0f64, 0.0f64);
     for _ in 0..1000 {
         let mut q = [0.0f64; 6];
         for (j, x) in q.iter_mut().enumerate() {
@@ -55,6 +55,14 @@ fn f32_pinch_pose_matches_mujoco_over_1000_configurations() {
             .map(|i| (f64::from(got.pos[i]) - want_pos[i]).powi(2))
             .sum::<f64>()
             .sqrt();
+        // The envelope's position-only chain (matrices on each joint's sine and cosine).
+        let trig = pinch_position_trig(&JointTrig::of(&q.map(|x| x as f32)));
+        worst_trig = worst_trig.max(
+            (0..3)
+                .map(|i| (f64::from(trig[i]) - want_pos[i]).powi(2))
+                .sum::<f64>()
+                .sqrt(),
+        );
         // Rotation error: the angle of M = R_got^T R_want, from its skew part and its trace
         // (atan2 of both: accurate near zero, where acos of the trace alone is not).
         let r = got.rot.to_rotation_matrix();
@@ -72,7 +80,14 @@ fn f32_pinch_pose_matches_mujoco_over_1000_configurations() {
         worst_pos = worst_pos.max(dp);
         worst_rot = worst_rot.max(angle);
     }
-    println!("worst over 1000: position {worst_pos:.2e} m, orientation {worst_rot:.2e} rad");
+    println!(
+        "worst over 1000: position {worst_pos:.2e} m, orientation {worst_rot:.2e} rad, \
+         the envelope's position {worst_trig:.2e} m"
+    );
     assert!(worst_pos < 1e-3, "position error {worst_pos} m");
+    assert!(
+        worst_trig < 1e-3,
+        "the envelope's position error {worst_trig} m"
+    );
     assert!(worst_rot < 1e-2, "orientation error {worst_rot} rad");
 }

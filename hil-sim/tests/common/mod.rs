@@ -6,8 +6,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
-use dex_hil_sim::node::{TimeMode, spawn_controller_node};
+use dex_hil_sim::node::{NodeTiming, TimeMode, spawn_controller_node};
 use dex_hil_sim::plant::{EpisodeReport, Plant, PlantNode, PlantTiming};
+use dex_hil_sim::wire::WireConfig;
 use dex_runtime::interface::ACT_DIM;
 
 /// Runs `episodes` (seed, step limit) of `plant` in lockstep over the bus with `policy` in the
@@ -17,8 +18,23 @@ pub fn lockstep_over_the_bus(
     plant: &mut dyn Plant,
     episodes: &[(u64, u32)],
 ) -> (Vec<[f32; ACT_DIM]>, Vec<EpisodeReport>) {
+    lockstep_over_a_wire(policy, plant, episodes, None, 0, None)
+}
+
+/// [`lockstep_over_the_bus`] on a bus with `wire` (`None`: untimed), the node's answers taking
+/// `compute_us` of bus time after an evaluation, the bus log written to `log`.
+pub fn lockstep_over_a_wire(
+    policy: &[u8],
+    plant: &mut dyn Plant,
+    episodes: &[(u64, u32)],
+    wire: Option<WireConfig>,
+    compute_us: u64,
+    log: Option<std::path::PathBuf>,
+) -> (Vec<[f32; ACT_DIM]>, Vec<EpisodeReport>) {
     let bus = Bus::start(BusConfig {
         clock: BusClock::Virtual,
+        wire,
+        log,
         ..BusConfig::default()
     })
     .unwrap();
@@ -27,7 +43,10 @@ pub fn lockstep_over_the_bus(
         bus.addr(),
         Some(policy.to_vec()),
         dex_runtime::ControllerConfig::default(),
-        TimeMode::Lockstep,
+        NodeTiming {
+            mode: TimeMode::Lockstep,
+            step_compute_us: compute_us,
+        },
         Arc::clone(&stop),
         None,
     )

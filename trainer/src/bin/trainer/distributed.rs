@@ -108,14 +108,15 @@ mod with_mpi {
     fn report(rank: usize, wall_s: f64, p: &Progress, st: &ExchangeStats) {
         line_to_stderr(&format!(
             "rank {rank}: {} transitions ({:.1}/s), {} updates ({:.1}/s) in {wall_s:.1} s; \
-             {} exchanges, {} refused, {:.0} bytes sent and {:.0} received per exchange, \
-             latency mean {:.2} ms max {:.2} ms",
+             {} exchanges, {} refused, {} late answers adopted, {:.0} bytes sent and {:.0} \
+             received per exchange, latency mean {:.2} ms max {:.2} ms",
             p.transitions,
             p.transitions as f64 / wall_s.max(1e-9),
             p.updates,
             p.updates as f64 / wall_s.max(1e-9),
             st.exchanges,
             st.refused,
+            st.readmitted,
             st.bytes_sent as f64 / st.exchanges.max(1) as f64,
             st.bytes_received as f64 / st.exchanges.max(1) as f64,
             st.mean_latency_s() * 1e3,
@@ -141,8 +142,10 @@ mod with_mpi {
         let t0 = Instant::now();
         if rank == 0 {
             let mut terminal = Terminal::new(a.quiet);
-            let (result, stats) = {
-                let mut server = Server::new(&mut transport, cfg)?;
+            let (result, stats, lost) = {
+                // Each lost or re-admitted worker rank as it happens, one write per line.
+                let mut server = Server::new(&mut transport, cfg)?
+                    .on_rank_change(|c| line_to_stderr(&format!("rank 0: {c}")));
                 let r = plan.train_distributed(
                     &scene,
                     a.resume,
@@ -150,7 +153,7 @@ mod with_mpi {
                     &mut |ev| terminal.show(ev),
                     &mut server,
                 );
-                (r, server.stats())
+                (r, server.stats(), server.membership().lost_now())
             };
             line_to_stderr(&format!(
                 "rank 0: {} exchanges applied, {} messages refused, {} bytes sent, {} received in {:.1} s",
@@ -166,6 +169,17 @@ mod with_mpi {
                 line_to_stderr(&format!("error: {:#}", anyhow::Error::from(e)));
                 // The other ranks would wait for rank 0 forever: end the job.
                 transport.abort(FAILED);
+            }
+            if !lost.is_empty() {
+                // The run is complete and written. A rank still lost may be stopped or cut off
+                // (it would hold MPI_Finalize, and mpirun, for ever) or dead (under
+                // `orte_abort_on_non_zero_status 0` mpirun then never ends either): end the job.
+                // mpirun exits 0 for a stopped rank, 137 when one was killed.
+                line_to_stderr(&format!(
+                    "rank 0: the run is complete; worker ranks {lost:?} are still lost: ending the \
+                     job (MPI_Abort with code 0)"
+                ));
+                transport.abort(0);
             }
         } else {
             let (stats, progress) = plan.train_worker_rank(&scene, &mut transport, cfg, &stop)?;

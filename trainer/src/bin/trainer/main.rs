@@ -148,6 +148,11 @@ struct TrainArgs {
     /// Selection starts per checkpoint (0: export the last policy instead of the best).
     #[arg(long)]
     select_best_episodes: Option<u32>,
+    /// A run that starts from a policy (--init-policy or the clone stage) ships the starting
+    /// policy when it solves more of this many selection starts than the selected one (0: off;
+    /// the fine-tune preset's 500).
+    #[arg(long)]
+    guard_episodes: Option<u32>,
     /// Continue from the checkpoints in the output folder.
     #[arg(long)]
     resume: bool,
@@ -167,8 +172,9 @@ struct TrainArgs {
     #[arg(long, requires = "distributed")]
     rank_timeout: Option<f64>,
     /// Start from a named configuration (`paper`: plain DDPG, none of the components below;
-    /// `demos`: the learner from demonstrations, the default of Grasp, StackInHand and Stack
-    /// without --config and without component flags); conflicts with the component flags.
+    /// `demos`: the learner from demonstrations, Reach's default; `finetune`: the clone stage and
+    /// the fine-tune that keeps the clone, the default of Grasp, StackInHand and Stack without
+    /// --config and without component flags); conflicts with the component flags.
     #[arg(long, value_enum, conflicts_with_all = [
         "demos", "record_demos", "demo_fraction", "bc_weight", "no_q_filter", "td3", "n_step",
         "noise_correlation", "finger_noise_scale", "action_l2", "pretrain_updates",

@@ -21,17 +21,6 @@ use dex_trainer::pipeline::train_settings::{self, PresetArg, RewardArg, TaskArg,
 
 use crate::{EvalArgs, TrainArgs};
 
-/// The transition budget of `trainer train --task grasp|stack-in-hand|stack` without a settings
-/// file: the Grasp ablation's `no-norm` row, 47/50 and 46/50 for seeds 0 and 1
-/// (docs/experiments.md).
-const DEMOS_TRANSITIONS: u64 = 20_000;
-
-/// The budget of `trainer train --task reach` without a settings file, and its checkpoint (and
-/// selection) interval: 50-step episodes, so a checkpoint every 50 episodes. Seeds 0, 1, 2 score
-/// 98.5-100% over 200 starts (docs/experiments.md, session 7).
-const REACH_DEMOS_TRANSITIONS: u64 = 10_000;
-const REACH_DEMOS_CHECKPOINT_EVERY: u64 = 2_500;
-
 /// Whether any flag of the learner's components (or a preset) is given. Quantisation-aware
 /// training counts: it does not go with demonstrations, so it keeps the paper's learner.
 fn learner_flags(a: &TrainArgs) -> bool {
@@ -125,23 +114,24 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
             }
         }
         Some(p) => p.apply(s),
-        // A task with no settings file and no learner flag gets the best measured configuration,
-        // the learner from demonstrations, at the budget it was measured with.
+        // A task with no settings file and no learner flag gets its default pipeline, at the
+        // budget it was measured with (one definition: `TaskArg::default_pipeline`).
         None if a.config.is_none() && !learner_flags(a) => {
-            PresetArg::Demos.apply(s);
-            let reach = s.task == TaskArg::Reach;
+            let d = s.task.default_pipeline();
+            d.preset.apply(s);
             if a.transitions.is_none() {
-                s.transitions = if reach {
-                    REACH_DEMOS_TRANSITIONS
-                } else {
-                    DEMOS_TRANSITIONS
-                };
+                s.transitions = d.transitions;
             }
-            if reach && a.checkpoint_every.is_none() {
-                s.checkpoint_every = REACH_DEMOS_CHECKPOINT_EVERY;
+            if let Some(c) = d.checkpoint_every
+                && a.checkpoint_every.is_none()
+            {
+                s.checkpoint_every = c;
             }
         }
         None => {}
+    }
+    if let Some(g) = a.guard_episodes {
+        s.guard_episodes = g;
     }
     // After the preset, which sets the actor's rate: the flags win over it.
     apply_learning_rates(s, a);
@@ -384,6 +374,13 @@ impl Terminal {
                 (None, false) => println!("{line}"),
                 (_, true) => println!("seed {seed}: {line}"),
             },
+            TrainEvent::Guarded { seed, verdict } => {
+                let line = format!("seed {seed}: {}", verdict.line());
+                match &self.bar {
+                    Some(pb) => pb.println(line),
+                    None => println!("{line}"),
+                }
+            }
             TrainEvent::Stopped { .. } => {
                 if let Some(pb) = self.bar.take() {
                     pb.abandon();
@@ -588,18 +585,45 @@ mod tests {
     }
 
     #[test]
-    fn a_task_without_learner_flags_gets_the_learner_from_demonstrations() {
-        let s = settings(&["--task", "grasp"]);
-        assert_eq!(s.record_demos, 200);
-        assert_eq!(s.run.demos.pretrain_updates, 20_000);
-        assert!(!s.run.obs_norm.enabled && !s.run.demos.q_filter);
-        assert_eq!(s.transitions, DEMOS_TRANSITIONS);
-        assert_eq!(s.run.ddpg.gamma, 0.98);
-        // Budget and seeds still apply; any learner flag starts from the paper's DDPG instead.
-        let s = settings(&["--task", "stack", "--transitions", "5000", "--seeds", "3"]);
+    fn a_task_without_learner_flags_gets_its_default_pipeline() {
+        use train_settings::{
+            FINETUNE_GUARD_EPISODES, FINETUNE_TRANSITIONS, REACH_DEMOS_CHECKPOINT_EVERY,
+            REACH_DEMOS_TRANSITIONS,
+        };
+        // Grasp, StackInHand, Stack: the clone stage and the guarded fine-tune, as the library
+        // defines them for every front end.
+        for task in ["grasp", "stack-in-hand", "stack"] {
+            let s = settings(&["--task", task]);
+            let mut lib = TrainSettings::for_task(s.task);
+            lib.seeds.clone_from(&s.seeds);
+            assert_eq!(s, lib, "{task}");
+            assert!(s.clone.is_some() && s.features, "{task}");
+            assert_eq!(
+                (s.transitions, s.guard_episodes, s.record_demos),
+                (FINETUNE_TRANSITIONS, FINETUNE_GUARD_EPISODES, 200)
+            );
+            assert_eq!(s.run.ddpg.gamma, 0.98);
+        }
+        // Budget, seeds and the guard's starts still apply; any learner flag starts from the
+        // paper's DDPG instead.
+        let s = settings(&[
+            "--task",
+            "stack",
+            "--transitions",
+            "5000",
+            "--seeds",
+            "3",
+            "--guard-episodes",
+            "50",
+        ]);
         assert_eq!(
-            (s.transitions, s.seeds.clone(), s.record_demos),
-            (5000, vec![3], 200)
+            (
+                s.transitions,
+                s.seeds.clone(),
+                s.record_demos,
+                s.guard_episodes
+            ),
+            (5000, vec![3], 200, 50)
         );
         for flags in [
             &["--task", "grasp", "--preset", "paper"][..],
@@ -610,9 +634,10 @@ mod tests {
             let s = settings(flags);
             assert_eq!(s.record_demos, 0, "{flags:?}");
             assert_eq!(s.run.demos, dex_trainer::learn::DemoDataConfig::default());
+            assert!(s.clone.is_none() && s.guard_episodes == 0, "{flags:?}");
         }
-        // Reach too, at its own budget and checkpoint interval (and its own discount); explicitly
-        // with the preset, at the budget the flags give.
+        // Reach: the learner from demonstrations, at its own budget and checkpoint interval (and
+        // its own discount); explicitly with the preset, at the budget the flags give.
         let s = settings(&["--task", "reach"]);
         assert_eq!(
             (
@@ -629,6 +654,7 @@ mod tests {
             )
         );
         assert_eq!(s.run.demos.pretrain_updates, 20_000);
+        assert!(s.clone.is_none());
         let s = settings(&["--task", "reach", "--preset", "demos"]);
         assert_eq!((s.record_demos, s.run.ddpg.gamma), (200, 0.9));
         assert_ne!(s.transitions, REACH_DEMOS_TRANSITIONS);
@@ -637,6 +663,27 @@ mod tests {
         assert_eq!((s.record_demos, s.run.actor_adam.lr), (200, 1e-4));
         let s = settings(&["--preset", "demos", "--lr", "2e-4"]);
         assert_eq!((s.run.actor_adam.lr, s.run.critic_adam.lr), (2e-4, 2e-4));
+        // A guard without a policy to guard is refused.
+        let cli = crate::Cli::try_parse_from([
+            "trainer",
+            "train",
+            "--task",
+            "grasp",
+            "--preset",
+            "paper",
+            "--guard-episodes",
+            "10",
+        ])
+        .expect("flags parse");
+        let crate::Command::Train(a) = cli.command else {
+            panic!("not train")
+        };
+        let mut s = TrainSettings::default();
+        apply_flags(&mut s, &a);
+        assert!(matches!(
+            s.validate(),
+            Err(train_settings::SettingsError::GuardWithoutInit)
+        ));
     }
 
     #[test]

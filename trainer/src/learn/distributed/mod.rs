@@ -22,6 +22,7 @@
 //! running mean of all ranks' squared gradients. Sending the summed gradient instead would make K
 //! local updates into one large-batch step on the server.
 
+pub mod membership;
 pub mod message;
 #[cfg(feature = "mpi")]
 pub mod mpi_transport;
@@ -43,8 +44,9 @@ pub const HEARTBEAT: Duration = Duration::from_millis(200);
 pub struct DistributedConfig {
     /// A worker rank pushes after this many of its updates (all its threads together).
     pub exchange_every: u64,
-    /// A rank silent this long (no message, or a send to it not taken) is lost: the server
-    /// writes a checkpoint and fails naming it.
+    /// A rank silent this long (no message, or a send to it not taken) is lost: the server goes
+    /// on without it (and re-admits it when it is heard from again); when no worker rank is left
+    /// it writes a checkpoint and fails naming the last.
     pub rank_timeout: Duration,
 }
 
@@ -104,10 +106,12 @@ pub enum DistributedError {
         /// What is wrong with it.
         why: &'static str,
     },
-    /// A worker rank died or stopped answering.
+    /// The last worker rank present died or stopped answering (the server goes on while any
+    /// is left).
     #[error(
-        "worker rank {rank} did not answer for {silent_s:.1} s (dead or stopped): the checkpoint \
-         holds the run up to now; continue it with --resume (any number of ranks)"
+        "worker rank {rank} did not answer for {silent_s:.1} s (dead or stopped) and no worker \
+         rank is left: the checkpoint holds the run up to now; continue it with --resume (any \
+         number of ranks)"
     )]
     RankLost {
         /// The rank.
@@ -157,6 +161,11 @@ pub struct ExchangeStats {
     pub latency_sum_s: f64,
     /// Worker: the longest of them.
     pub latency_max_s: f64,
+    /// Server: worker ranks lost (a rank lost twice counts twice).
+    pub lost: u64,
+    /// Server: lost worker ranks re-admitted. Worker: answers that came after more than the rank
+    /// timeout, on which the rank dropped what it had learned since its push.
+    pub readmitted: u64,
 }
 
 impl ExchangeStats {

@@ -114,6 +114,9 @@ mod tests {
     //! corrupt pushes are refused, counted and never applied while the run still learns.
     use super::*;
     use crate::learn::distributed::DistributedError;
+    use crate::learn::distributed::membership::RankChangeKind;
+    use std::sync::Arc;
+    use std::sync::atomic::Ordering;
     use std::sync::mpsc::{Receiver, Sender, channel};
     use std::time::Duration;
 
@@ -219,7 +222,7 @@ mod tests {
     fn a_silent_rank_is_lost_over_many_short_serve_calls() {
         // Rank 2 never sends. The run goes in chunks much shorter than the timeout, with time
         // away between them (a local run's selection and checkpoint): silence carries over the
-        // calls, so rank 0 still times rank 2 out, naming it.
+        // calls, so rank 0 still counts rank 2 lost, and goes on with rank 1.
         let cfg = DistributedConfig {
             rank_timeout: Duration::from_secs(1),
             ..DistributedConfig::default()
@@ -233,34 +236,165 @@ mod tests {
         });
         let stop = AtomicBool::new(false);
         let mut trainer = Trainer::new(point_mass_config(2, 1), 6, 2).expect("trainer");
-        let mut server = Server::new(&mut server_side, cfg).expect("server");
+        let mut seen = Vec::new();
+        let mut server = Server::new(&mut server_side, cfg)
+            .expect("server")
+            .on_rank_change(|c| seen.push(*c));
         let t0 = std::time::Instant::now();
-        let mut lost = None;
-        for _ in 0..2_000 {
+        let mut at_loss = None;
+        loop {
             let until = trainer.progress().transitions + 50;
-            match server.serve(&mut trainer, until, &stop, &mut |_| {}) {
-                Ok(_) => std::thread::sleep(Duration::from_millis(5)),
-                Err(e) => {
-                    lost = Some(e);
-                    break;
-                }
+            server
+                .serve(&mut trainer, until, &stop, &mut |_| {})
+                .expect("the run goes on without rank 2");
+            std::thread::sleep(Duration::from_millis(5));
+            let progress = trainer.progress().transitions;
+            if at_loss.is_none() && server.membership().is_lost(2) {
+                at_loss = Some(progress);
+            }
+            // Rank 1 alone moves the run on after the loss.
+            if at_loss.is_some_and(|a| progress > a + 200) {
+                break;
             }
             assert!(t0.elapsed() < Duration::from_secs(60), "never timed out");
         }
+        assert!(!server.membership().is_lost(1));
+        assert_eq!(server.stats().lost, 1);
         server.finish().expect("finish");
+        drop(server);
         let _ = w.join().expect("worker thread");
-        match lost {
-            Some(LearnError::Distributed(DistributedError::RankLost { rank, silent_s })) => {
-                assert_eq!(rank, 2);
+        assert_eq!(seen.len(), 1, "{seen:?}");
+        assert_eq!((seen[0].rank, seen[0].kind), (2, RankChangeKind::Lost));
+        assert!(seen[0].silent_s >= 1.0, "{:?}", seen[0]);
+        // Many calls went by before it: the chunks were short.
+        assert!(at_loss.is_some_and(|a| a > 100), "{at_loss:?}");
+    }
+
+    #[test]
+    fn losing_every_worker_rank_fails_naming_the_last() {
+        let cfg = DistributedConfig {
+            rank_timeout: Duration::from_secs(1),
+            ..DistributedConfig::default()
+        };
+        let mut ranks = world(2, 0);
+        let _silent = ranks.pop().expect("rank 1");
+        let mut server_side = ranks.pop().expect("rank 0");
+        let stop = AtomicBool::new(false);
+        let mut trainer = Trainer::new(point_mass_config(2, 1), 6, 2).expect("trainer");
+        let mut server = Server::new(&mut server_side, cfg).expect("server");
+        match server.serve(&mut trainer, u64::MAX, &stop, &mut |_| {}) {
+            Err(LearnError::Distributed(DistributedError::RankLost { rank, silent_s })) => {
+                assert_eq!(rank, 1);
                 assert!(silent_s >= 1.0, "{silent_s}");
             }
             other => panic!("{other:?}"),
         }
-        // Many calls went by before it: the chunks were short.
-        assert!(
-            trainer.progress().transitions > 100,
-            "{:?}",
-            trainer.progress()
+    }
+
+    /// A link that can be cut: while cut, what the rank sends is held back (as TCP holds it
+    /// while a cable is out) and nothing reaches it; restored, the held messages go out in order.
+    struct Cuttable {
+        inner: Channels,
+        cut: Arc<AtomicBool>,
+        held: Vec<(usize, Vec<u8>)>,
+    }
+
+    impl Transport for Cuttable {
+        fn rank(&self) -> usize {
+            self.inner.rank()
+        }
+        fn size(&self) -> usize {
+            self.inner.size()
+        }
+        fn try_recv(
+            &mut self,
+            from: Option<usize>,
+        ) -> Result<Option<(usize, Vec<u8>)>, DistributedError> {
+            if self.cut.load(Ordering::SeqCst) {
+                return Ok(None);
+            }
+            for (to, bytes) in self.held.drain(..) {
+                self.inner.send(to, bytes)?;
+            }
+            self.inner.try_recv(from)
+        }
+        fn send(&mut self, to: usize, bytes: Vec<u8>) -> Result<(), DistributedError> {
+            if self.cut.load(Ordering::SeqCst) || !self.held.is_empty() {
+                self.held.push((to, bytes));
+                return Ok(());
+            }
+            self.inner.send(to, bytes)
+        }
+        fn in_flight(&mut self, to: usize) -> usize {
+            self.inner.in_flight(to)
+        }
+    }
+
+    #[test]
+    fn a_cut_off_rank_is_lost_then_readmitted_and_its_late_answer_adopted() {
+        let cfg = DistributedConfig {
+            rank_timeout: Duration::from_secs(1),
+            ..DistributedConfig::default()
+        };
+        let mut ranks = world(3, 0);
+        let cut = Arc::new(AtomicBool::new(false));
+        let mut cuttable = Cuttable {
+            inner: ranks.pop().expect("rank 2"),
+            cut: Arc::clone(&cut),
+            held: Vec::new(),
+        };
+        let mut worker = ranks.pop().expect("rank 1");
+        let mut server_side = ranks.pop().expect("rank 0");
+        let w1 = std::thread::spawn(move || {
+            run_point_mass(&mut worker, cfg, point_mass_config(3, 1), u64::MAX, 0)
+        });
+        let w2 = std::thread::spawn(move || {
+            run_point_mass(&mut cuttable, cfg, point_mass_config(3, 1), u64::MAX, 0)
+        });
+        let stop = AtomicBool::new(false);
+        let mut trainer = Trainer::new(point_mass_config(3, 1), 6, 2).expect("trainer");
+        let mut server = Server::new(&mut server_side, cfg).expect("server");
+        let t0 = std::time::Instant::now();
+        // Serves in short chunks and checks between them: cut rank 2 once both ranks exchange,
+        // restore it once it is lost, end once it is back and the run moved on.
+        let mut back_at = None;
+        loop {
+            let until = trainer.progress().transitions + 50;
+            server
+                .serve(&mut trainer, until, &stop, &mut |_| {})
+                .expect("the run goes on");
+            let m = server.membership();
+            let transitions = trainer.progress().transitions;
+            if !cut.load(Ordering::SeqCst) && m.changes().is_empty() && transitions > 500 {
+                cut.store(true, Ordering::SeqCst);
+            }
+            if cut.load(Ordering::SeqCst) && m.is_lost(2) {
+                cut.store(false, Ordering::SeqCst);
+            }
+            if back_at.is_none() && m.changes().len() == 2 {
+                back_at = Some(transitions);
+            }
+            if back_at.is_some_and(|b| transitions > b + 200) {
+                break;
+            }
+            assert!(t0.elapsed() < Duration::from_secs(90), "{:?}", m.changes());
+        }
+        let kinds: Vec<_> = server
+            .membership()
+            .changes()
+            .iter()
+            .map(|c| (c.rank, c.kind))
+            .collect();
+        assert_eq!(
+            kinds,
+            [(2, RankChangeKind::Lost), (2, RankChangeKind::Readmitted)]
         );
+        assert_eq!((server.stats().lost, server.stats().readmitted), (1, 1));
+        server.finish().expect("finish");
+        drop(server);
+        let _ = w1.join().expect("rank 1");
+        let (_, stats2, _) = w2.join().expect("rank 2").expect("rank 2 ends on the stop");
+        // Rank 2's answer came after more than the timeout: it took the server's state outright.
+        assert!(stats2.readmitted >= 1, "{stats2:?}");
     }
 }

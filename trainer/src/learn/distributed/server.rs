@@ -10,7 +10,12 @@
 //! counters.
 //!
 //! Faults: a rank that sends nothing for [`DistributedConfig::rank_timeout`], or does not take a
-//! send for that long, is lost ([`DistributedError::RankLost`]); the caller writes a checkpoint.
+//! send for that long, is lost: the server records it ([`Membership`]), tells the observer
+//! ([`Server::on_rank_change`]) and goes on with the other ranks. A lost rank that is heard from
+//! again is re-admitted: its message is applied as any other (what a rank pushes is what it did
+//! since the server's state it last took, so nothing is counted twice; a killed rank's push that
+//! never arrived whole is never applied) and it gets the current state. Only when no worker rank
+//! is left does the server fail ([`DistributedError::RankLost`]); the caller writes a checkpoint.
 //! Silence is measured on the server's own clock, which runs only inside [`Server::serve`]: the
 //! time the caller spends between calls (selection, checkpoints) is nobody's silence, and a rank's
 //! silence carries over from one call to the next (resetting it at each call let a stopped rank
@@ -18,6 +23,7 @@
 //! A refused message is counted ([`ExchangeStats::refused`]) and never applied; its sender gets
 //! the current state as if its push had been empty (it then drops what it pushed).
 
+use super::membership::{Membership, RankChange};
 use super::message::{self, Message, NetParams, Params, Push};
 use super::worker::{net_beta2, net_sizes};
 use super::{DistributedConfig, DistributedError, ExchangeStats, Transport};
@@ -25,6 +31,9 @@ use crate::learn::{EvalRecord, Event, LearnError, Progress, RunSummary, Trainer}
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
+
+/// What [`Server::on_rank_change`] calls with each membership change.
+type RankObserver<'t> = Box<dyn FnMut(&RankChange) + 't>;
 
 /// Rank 0 of a distributed run.
 pub struct Server<'t, T: Transport> {
@@ -40,6 +49,8 @@ pub struct Server<'t, T: Transport> {
     served: Duration,
     started: bool,
     stats: ExchangeStats,
+    membership: Membership,
+    observer: Option<RankObserver<'t>>,
 }
 
 impl<T: Transport> std::fmt::Debug for Server<'_, T> {
@@ -66,7 +77,31 @@ impl<'t, T: Transport> Server<'t, T> {
             served: Duration::ZERO,
             started: false,
             stats: ExchangeStats::default(),
+            membership: Membership::new(n),
+            observer: None,
         })
+    }
+
+    /// Calls `f` with every change of a worker rank's membership (lost, re-admitted) as it
+    /// happens, e.g. to log it.
+    pub fn on_rank_change(mut self, f: impl FnMut(&RankChange) + 't) -> Self {
+        self.observer = Some(Box::new(f));
+        self
+    }
+
+    /// Which worker ranks are present and the changes so far.
+    pub fn membership(&self) -> &Membership {
+        &self.membership
+    }
+
+    fn changed(&mut self, c: RankChange) {
+        match c.kind {
+            super::membership::RankChangeKind::Lost => self.stats.lost += 1,
+            super::membership::RankChangeKind::Readmitted => self.stats.readmitted += 1,
+        }
+        if let Some(f) = self.observer.as_mut() {
+            f(&c);
+        }
     }
 
     /// The exchange counters so far (refused messages included).
@@ -136,6 +171,9 @@ impl<'t, T: Transport> Server<'t, T> {
                 if let Some(t) = self.last_seen.get_mut(from) {
                     *t = clock();
                 }
+                if self.membership.is_lost(from) {
+                    self.readmit(trainer, from, clock());
+                }
                 match message::decode(&bytes, &self.sizes) {
                     Ok((r, Message::Push(p))) if r as usize == from && from > 0 => {
                         self.apply(trainer, from, p, &mut records, on_event);
@@ -154,17 +192,25 @@ impl<'t, T: Transport> Server<'t, T> {
             }
             let now = clock();
             for r in 1..self.transport.size() {
+                if self.membership.is_lost(r) {
+                    continue;
+                }
                 let silent = now.saturating_sub(self.last_seen[r]);
                 let stuck = self
                     .oldest_send(r)
                     .map_or(Duration::ZERO, |t| now.saturating_sub(t));
                 let worst = silent.max(stuck);
                 if worst > self.cfg.rank_timeout {
-                    return Err(DistributedError::RankLost {
-                        rank: r,
-                        silent_s: worst.as_secs_f64(),
+                    let transitions = trainer.progress().transitions;
+                    let c = self.membership.lose(r, now, worst, transitions);
+                    self.changed(c);
+                    if self.membership.present() == 0 {
+                        return Err(DistributedError::RankLost {
+                            rank: r,
+                            silent_s: worst.as_secs_f64(),
+                        }
+                        .into());
                     }
-                    .into());
                 }
             }
             if shown.elapsed() >= Duration::from_millis(500) {
@@ -177,8 +223,8 @@ impl<'t, T: Transport> Server<'t, T> {
         }
     }
 
-    /// Tells every worker rank to stop and waits (up to the rank timeout) until the messages
-    /// are taken.
+    /// Tells every worker rank to stop (lost ones too: a stopped or cut-off rank that comes back
+    /// takes it and ends) and waits (up to the rank timeout) until the ranks present took it.
     pub fn finish(&mut self) -> Result<(), LearnError> {
         let bytes = message::encode(0, &Message::Stop);
         for r in 1..self.transport.size() {
@@ -188,13 +234,27 @@ impl<'t, T: Transport> Server<'t, T> {
         while t0.elapsed() < self.cfg.rank_timeout {
             // Pushes still arriving are dropped: the run is over.
             while self.transport.try_recv(None)?.is_some() {}
-            let pending = (1..self.transport.size()).any(|r| self.transport.in_flight(r) > 0);
+            let pending = (1..self.transport.size())
+                .filter(|&r| !self.membership.is_lost(r))
+                .any(|r| self.transport.in_flight(r) > 0);
             if !pending {
                 return Ok(());
             }
             std::thread::sleep(Duration::from_millis(1));
         }
         Ok(())
+    }
+
+    /// Takes the lost rank `r` back (it was heard from at serve-clock `now`): its sends still
+    /// in flight count from now, as its silence does.
+    fn readmit(&mut self, trainer: &Trainer, r: usize, now: Duration) {
+        if let Some(q) = self.sends.get_mut(r) {
+            q.iter_mut().for_each(|t| *t = now);
+        }
+        let transitions = trainer.progress().transitions;
+        if let Some(c) = self.membership.readmit(r, now, transitions) {
+            self.changed(c);
+        }
     }
 
     /// Moves the sends on and gives the serve-clock start of the oldest send to `r` still in

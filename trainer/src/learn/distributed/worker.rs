@@ -6,6 +6,15 @@
 //! arrives, rebase: `params = server + (params - at_push)`, the second moment likewise
 //! (`v = beta2^k' v_server + (v - beta2^k' v_at_push)` for the k' steps since the push), the
 //! targets and the step counts are the server's. A stop message ends the run.
+//!
+//! An answer that comes more than half the [`DistributedConfig::rank_timeout`] after the answer
+//! before it (the rank was stopped or cut off, and the server has likely counted it lost) is
+//! adopted outright instead: the rank drops what it learned since its push, and the transitions
+//! it collected meanwhile are never pushed, so the server's count holds only the work it applied
+//! and a rank's stale progress from a long partition is not added to the shared parameters when
+//! it is re-admitted. (Measured from the previous answer, not from the push: the server counts
+//! silence from the rank's last message, and a push made just after a cut began would read
+//! younger than the rank's absence. Half the timeout leaves room for the round trip.)
 
 use super::message::{self, Message, NetDelta, Params, Push, RemoteEval};
 use super::{DistributedConfig, DistributedError, ExchangeStats, HEARTBEAT, Transport};
@@ -46,6 +55,8 @@ pub struct WorkerRank<'t, T: Transport> {
     /// Transitions and episodes already pushed.
     pushed: (u64, u64),
     awaiting: Option<Instant>,
+    /// When the last state from the server arrived.
+    last_answer: Instant,
     last_push: Instant,
     stats: ExchangeStats,
 }
@@ -96,6 +107,7 @@ impl<'t, T: Transport> WorkerRank<'t, T> {
             updates_at_push: 0,
             pushed: (0, 0),
             awaiting: None,
+            last_answer: Instant::now(),
             last_push: Instant::now(),
             stats: ExchangeStats::default(),
         })
@@ -152,6 +164,7 @@ impl<'t, T: Transport> WorkerRank<'t, T> {
         }
         sh.updates = params.updates;
         self.updates_at_push = params.updates;
+        self.last_answer = Instant::now();
         let rank = self.transport.rank() as u64;
         let seed = trainer.cfg.seed;
         for (i, w) in trainer.workers.iter_mut().enumerate() {
@@ -294,6 +307,33 @@ impl<'t, T: Transport> WorkerRank<'t, T> {
     }
 }
 
+impl<T: Transport> WorkerRank<'_, T> {
+    /// Takes the server's state outright (a late answer: see the module docs): parameters,
+    /// second moments, step counts, targets and the update count are the server's, and the
+    /// transitions and episodes since the last push are never pushed.
+    fn adopt(&mut self, shared: &SharedNets<'_, '_>, p: &Params) -> Result<(), LearnError> {
+        for (i, (base, s)) in self.base.iter_mut().zip(&p.nets).enumerate() {
+            shared.with_net(i, |n: &mut NetShared| {
+                n.params.clone_from(&s.params);
+                n.adam.v.clone_from(&s.v);
+                n.adam.t = s.t;
+                n.target.clone_from(&s.target);
+                base.params.clone_from(&s.params);
+                base.v.clone_from(&s.v);
+                base.t = s.t;
+            })?;
+        }
+        let now = shared.updates().load(Ordering::Relaxed);
+        shared
+            .updates()
+            .fetch_add(p.updates.wrapping_sub(now), Ordering::Relaxed);
+        self.updates_at_push = p.updates;
+        let progress = shared.progress();
+        self.pushed = (progress.transitions, progress.episodes);
+        Ok(())
+    }
+}
+
 impl<T: Transport> RankSync for WorkerRank<'_, T> {
     fn poll(
         &mut self,
@@ -304,7 +344,14 @@ impl<T: Transport> RankSync for WorkerRank<'_, T> {
         while let Some(m) = self.receive()? {
             match m {
                 Message::Params(p) => {
-                    self.rebase(shared, &p)?;
+                    let late = self.last_answer.elapsed() > self.cfg.rank_timeout / 2;
+                    self.last_answer = Instant::now();
+                    if late {
+                        self.adopt(shared, &p)?;
+                        self.stats.readmitted += 1;
+                    } else {
+                        self.rebase(shared, &p)?;
+                    }
                     if let Some(t) = self.awaiting.take() {
                         let s = t.elapsed().as_secs_f64();
                         self.stats.latency_sum_s += s;

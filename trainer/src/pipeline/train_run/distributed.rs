@@ -18,6 +18,18 @@ pub trait ParameterServer {
     fn finish(&mut self) -> Result<(), LearnError>;
     /// The exchange counters (refused messages among them).
     fn stats(&self) -> ExchangeStats;
+    /// Every change of a worker rank's membership (lost, re-admitted) so far.
+    fn rank_changes(&self) -> Vec<RankChange>;
+    /// The worker ranks lost now.
+    fn lost_now(&self) -> Vec<usize>;
+}
+
+/// The seed folder's `distributed.json`: the exchange counters and the membership changes.
+#[derive(serde::Serialize)]
+struct DistributedRecord {
+    #[serde(flatten)]
+    stats: ExchangeStats,
+    rank_changes: Vec<RankChange>,
 }
 
 impl<T: Transport> ParameterServer for Server<'_, T> {
@@ -35,6 +47,12 @@ impl<T: Transport> ParameterServer for Server<'_, T> {
     }
     fn stats(&self) -> ExchangeStats {
         Server::stats(self)
+    }
+    fn rank_changes(&self) -> Vec<RankChange> {
+        self.membership().changes().to_vec()
+    }
+    fn lost_now(&self) -> Vec<usize> {
+        self.membership().lost_now()
     }
 }
 
@@ -59,8 +77,9 @@ fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
 impl TrainPlan {
     /// Rank 0 of a distributed run: the run folder's pipeline of [`TrainPlan::train`] (one seed),
     /// with `server` collecting the transitions and updates from the worker ranks instead of local
-    /// threads. A lost rank ends the run with a checkpoint and the error. The exchange counters go
-    /// to the seed folder's `distributed.json`.
+    /// threads. A lost worker rank is left behind (and re-admitted when it comes back); when no
+    /// worker rank is left, the run ends with a checkpoint and the error. The exchange counters
+    /// and the membership changes go to the seed folder's `distributed.json`.
     pub fn train_distributed(
         &self,
         scene: &Scene,
@@ -87,11 +106,14 @@ impl TrainPlan {
             on_event,
             Some(&mut *server),
         );
-        let stats = server.stats();
+        let record = DistributedRecord {
+            stats: server.stats(),
+            rank_changes: server.rank_changes(),
+        };
         let dir = s.out.join(format!("seed-{seed}"));
         write_file(
             &dir.join("distributed.json"),
-            serde_json::to_string(&stats)?.as_bytes(),
+            serde_json::to_string(&record)?.as_bytes(),
         )?;
         if !done? {
             server.finish()?;

@@ -24,6 +24,7 @@ use crate::env::{Demonstrator, EnvError, Scene, StartStates};
 use crate::evaluate::{EvalError, EvalSettings, PolicyEval, evaluate_policy_file};
 use crate::files::demos::DemoError;
 use crate::files::export::{ExportError, ExportInfo, ObsNormalisation, export_actor};
+use crate::learn::distributed::membership::RankChange;
 use crate::learn::distributed::server::Server;
 use crate::learn::distributed::worker::WorkerRank;
 use crate::learn::distributed::{DistributedConfig, DistributedError, ExchangeStats, Transport};
@@ -35,6 +36,7 @@ use crate::pipeline::train_settings::{SettingsError, TrainSettings};
 
 mod demonstrations;
 mod distributed;
+mod guard;
 mod run_log;
 mod seed_export;
 mod seed_run;
@@ -42,6 +44,8 @@ mod selection;
 
 use demonstrations::demonstrations;
 pub use distributed::ParameterServer;
+pub use guard::GuardVerdict;
+use guard::run_guard;
 use run_log::truncate_log;
 pub use seed_export::export_selected;
 use seed_run::train_seed;
@@ -214,6 +218,14 @@ pub enum TrainRunError {
     /// A record could not be written as JSON.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
+    /// A seed's `guard.json` is not the guard's verdict.
+    #[error("{} is damaged (delete it to run the guard again)", path.display())]
+    DamagedGuard {
+        /// The file.
+        path: PathBuf,
+        /// Why it does not parse.
+        source: serde_json::Error,
+    },
     /// The learner failed.
     #[error(transparent)]
     Learn(#[from] LearnError),
@@ -321,6 +333,14 @@ pub enum TrainEvent<'a> {
         seed: u64,
         /// The counters.
         progress: &'a Progress,
+    },
+    /// The guard compared the selected policy with the one the run started from
+    /// ([`TrainSettings::guard_episodes`]); the export follows its verdict.
+    Guarded {
+        /// The seed.
+        seed: u64,
+        /// The comparison and which policy ships.
+        verdict: &'a GuardVerdict,
     },
     /// A checkpoint was evaluated on the selection starts.
     Selection {

@@ -1,13 +1,82 @@
-//! The exported policy file of a seed: the selected (or current) actor, evaluated through the
-//! runtime, with `final_eval.json` beside it.
+//! The exported policy file of a seed: the selected (or current) actor, or the policy the run
+//! started from where the guard ([`super::guard`]) found it better, evaluated through the runtime,
+//! with `final_eval.json` beside it.
 
+use super::guard::{GuardVerdict, read_verdict};
 use super::*;
 
+/// The policy a seed's run folder exports when no guard intervenes: its network, parameters,
+/// normaliser (none when folded) and transitions.
+pub(super) struct Selected<'t> {
+    net: &'t crate::learn::nets::Mlp,
+    params: Cow<'t, [f32]>,
+    normaliser: Option<crate::learn::norm::Normalizer>,
+    /// Transitions of the checkpoint.
+    pub transitions: u64,
+}
+
+impl Selected<'_> {
+    /// The policy file, with `info`'s provenance.
+    fn file(&self, info: &ExportInfo) -> Result<Vec<u8>, TrainRunError> {
+        let norm = self.normaliser.as_ref().map(|n| ObsNormalisation {
+            mean: &n.mean,
+            inv_std: &n.inv_std,
+        });
+        Ok(export_actor(self.net, &self.params, norm, info)?)
+    }
+
+    /// The file before its final evaluation (no success in its provenance).
+    pub(super) fn draft(&self, s: &TrainSettings, seed: u64) -> Result<Vec<u8>, TrainRunError> {
+        self.file(&export_info(s, seed, self.transitions))
+    }
+}
+
+fn export_info(s: &TrainSettings, seed: u64, transitions: u64) -> ExportInfo {
+    ExportInfo {
+        task: s.task.task(),
+        seed,
+        transitions,
+        success_rate: None,
+        eval_episodes: 0,
+    }
+}
+
+/// What [`export_selected`] exports unless the guard keeps the starting policy: the best
+/// checkpoint on the selection starts (`best_actor.bin`, normalisation folded in) when there is
+/// one, else `trainer`'s current actor (quantisation-aware: the int8-grid weights it trained, no
+/// normaliser then).
+pub(super) fn selected<'t>(
+    trainer: &'t Trainer,
+    dir: &Path,
+) -> Result<Selected<'t>, TrainRunError> {
+    let (net, raw) = trainer.actor();
+    if let Some((params, best)) = read_best(dir)? {
+        return Ok(Selected {
+            net,
+            params: Cow::Owned(params),
+            normaliser: None,
+            transitions: best.transitions,
+        });
+    }
+    let params = if trainer.quantisation_aware() {
+        Cow::Owned(trainer.policy_params()?)
+    } else {
+        Cow::Borrowed(raw)
+    };
+    Ok(Selected {
+        net,
+        params,
+        normaliser: trainer.obs_normalizer(),
+        transitions: trainer.progress().transitions,
+    })
+}
+
 /// Exports the policy of a seed's run folder `dir` (what `trainer train` exports and `trainer
-/// export` writes again): the best checkpoint on the selection starts (`best_actor.bin`) when
-/// there is one, else `trainer`'s current actor. Evaluates the file through the runtime on the
-/// final-evaluation starts and writes it to `out` with the measured success in its provenance,
-/// plus `final_eval.json` beside it.
+/// export` writes again): the selected policy ([`selected`]), or, where the folder's guard verdict
+/// (`guard.json`, of this same selected checkpoint) says the policy the run started from solved
+/// more of the guard's starts, that policy's file as it is. Evaluates the file through the runtime
+/// on the final-evaluation starts and writes it to `out` (a selected policy with the measured
+/// success in its provenance), plus `final_eval.json` beside it.
 pub fn export_selected(
     trainer: &Trainer,
     s: &TrainSettings,
@@ -16,71 +85,41 @@ pub fn export_selected(
     out: &Path,
     scene: &Scene,
 ) -> Result<PolicyEval, TrainRunError> {
-    match read_best(dir)? {
-        Some((params, best)) => {
-            let (net, _) = trainer.actor();
-            export_and_evaluate(net, &params, None, best.transitions, s, seed, out, scene)
-        }
-        None => export_checkpoint_trainer(trainer, s, seed, out, scene),
+    let chosen = selected(trainer, dir)?;
+    let verdict = read_verdict(dir)?.filter(|v| v.selected_transitions == chosen.transitions);
+    if let Some(v) = verdict.as_ref().filter(|v| v.ships_init) {
+        return export_init(v, s, out, scene);
     }
+    let mut info = export_info(s, seed, chosen.transitions);
+    let draft = chosen.file(&info)?;
+    let eval = final_evaluation(&draft, s, scene)?;
+    info.success_rate = Some(eval.success_rate() as f32);
+    info.eval_episodes = eval.episodes;
+    write_file(out, &chosen.file(&info)?)?;
+    write_final_eval(out, &eval, chosen.transitions, "selected", verdict.as_ref())?;
+    Ok(eval)
 }
 
-/// Exports the trainer's actor, evaluates the file through the runtime, and writes the file with the
-/// measured success rate in its provenance, plus `final_eval.json`.
-fn export_checkpoint_trainer(
-    trainer: &Trainer,
+/// The guard kept the starting policy: its file, unchanged, is the seed's policy.
+fn export_init(
+    v: &GuardVerdict,
     s: &TrainSettings,
-    seed: u64,
     out: &Path,
     scene: &Scene,
 ) -> Result<PolicyEval, TrainRunError> {
-    let (net, raw) = trainer.actor();
-    // Quantisation-aware: the int8-grid weights the learner trained (no normaliser then).
-    let grid;
-    let params = if trainer.quantisation_aware() {
-        grid = trainer.policy_params()?;
-        &grid[..]
-    } else {
-        raw
-    };
-    let normaliser = trainer.obs_normalizer();
-    let norm = normaliser.as_ref().map(|n| ObsNormalisation {
-        mean: &n.mean,
-        inv_std: &n.inv_std,
-    });
-    export_and_evaluate(
-        net,
-        params,
-        norm,
-        trainer.progress().transitions,
-        s,
-        seed,
-        out,
-        scene,
-    )
+    let bytes = std::fs::read(&v.init_policy).map_err(io_at(&v.init_policy))?;
+    let eval = final_evaluation(&bytes, s, scene)?;
+    write_file(out, &bytes)?;
+    write_final_eval(out, &eval, 0, "init_policy", Some(v))?;
+    Ok(eval)
 }
 
-/// Exports `params` of `net`, evaluates the file through the runtime on the final-evaluation
-/// starts, and writes it with the measured success in its provenance, plus `final_eval.json`.
-#[allow(clippy::too_many_arguments)]
-fn export_and_evaluate(
-    net: &crate::learn::nets::Mlp,
-    params: &[f32],
-    norm: Option<ObsNormalisation<'_>>,
-    transitions: u64,
+/// `file` through the runtime on the final-evaluation starts.
+fn final_evaluation(
+    file: &[u8],
     s: &TrainSettings,
-    seed: u64,
-    out: &Path,
     scene: &Scene,
 ) -> Result<PolicyEval, TrainRunError> {
-    let mut info = ExportInfo {
-        task: s.task.task(),
-        seed,
-        transitions,
-        success_rate: None,
-        eval_episodes: 0,
-    };
-    let draft = export_actor(net, params, norm, &info)?;
     let settings = EvalSettings {
         env: s.reward.env_config(s.task.task()),
         episodes: s.final_eval_episodes,
@@ -89,22 +128,34 @@ fn export_and_evaluate(
         can_quantisation: true,
         envelope: false,
     };
-    let eval = evaluate_policy_file(&draft, scene, &settings, &|| {})?;
-    info.success_rate = Some(eval.success_rate() as f32);
-    info.eval_episodes = eval.episodes;
-    write_file(out, &export_actor(net, params, norm, &info)?)?;
-    let json = serde_json::json!({
+    Ok(evaluate_policy_file(file, scene, &settings, &|| {})?)
+}
+
+/// `final_eval.json` beside `out`: the figures, which policy it is (`selected` or `init_policy`)
+/// and the guard's verdict, if any.
+fn write_final_eval(
+    out: &Path,
+    eval: &PolicyEval,
+    transitions: u64,
+    source: &str,
+    guard: Option<&GuardVerdict>,
+) -> Result<(), TrainRunError> {
+    let mut json = serde_json::json!({
         "policy": out.file_name().map(|n| n.to_string_lossy().to_string()),
         "episodes": eval.episodes,
         "successes": eval.successes,
         "success_rate": eval.success_rate(),
         "ci95": [eval.ci95.0, eval.ci95.1],
         "mean_return": eval.mean_return,
-        "start_seed": settings.seed,
-        "transitions": info.transitions,
+        "start_seed": crate::env::seeds::EVAL_SEED,
+        "transitions": transitions,
+        "source": source,
     });
+    if let Some(v) = guard {
+        json["guard"] = serde_json::to_value(v)?;
+    }
     if let Some(dir) = out.parent() {
         write_file(&dir.join("final_eval.json"), json.to_string().as_bytes())?;
     }
-    Ok(eval)
+    Ok(())
 }

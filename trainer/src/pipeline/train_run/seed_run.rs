@@ -55,6 +55,7 @@ pub(super) fn train_seed(
             &log_path,
             &dir.join("best.json"),
             &dir.join("best_actor.bin"),
+            &dir.join("guard.json"),
         ] {
             let _ = std::fs::remove_file(stale);
         }
@@ -168,6 +169,12 @@ pub(super) fn train_seed(
         srv.finish()?;
     }
     on_event(TrainEvent::Trained { seed });
+    if let Some(verdict) = run_guard(&trainer, s, seed, &dir, scene)? {
+        on_event(TrainEvent::Guarded {
+            seed,
+            verdict: &verdict,
+        });
+    }
     let out = dir.join("policy.dxpl");
     let eval = export_selected(&trainer, s, seed, &dir, &out, scene)?;
     on_event(TrainEvent::Exported {
