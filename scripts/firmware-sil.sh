@@ -121,7 +121,9 @@ start_bus() {
     "$HS" bus --port 0 --lockstep --log "$W/$name.candump" "$@" >"$W/$name.bus.out" 2>"$W/$name.bus.err" &
     pids+=($!)
     for _ in $(seq 100); do
-        BUS=$(sed -n 's/^hil-sim bus listening on //p' "$W/$name.bus.out")
+        # The backgrounded bus may not have created its output file yet: not an error (under
+        # set -e a failing sed here would end the script without a word).
+        BUS=$(sed -n 's/^hil-sim bus listening on //p' "$W/$name.bus.out" 2>/dev/null || true)
         [ -n "$BUS" ] && return 0
         sleep 0.05
     done

@@ -4,7 +4,8 @@
   firmware_sil.py watchdog BUS_ADDR CANDUMP_LOG OUT
       On a lockstep bus whose plant has finished (controller left operational): carries on the
       bus's simulated time from the last frame in CANDUMP_LOG, sends SYNC for 8 periods and no
-      observation, and writes every frame the controller sends (`ID#DATA`, one a line) to OUT.
+      observation, and writes every frame the controller sends to OUT (`PERIOD ID#DATA`, one a
+      line, in identifier order within a period).
       Fails unless an emergency 0x8250 (RPDO timeout: the observation watchdog) is among them.
   firmware_sil.py bad-input SERIAL_ADDR QEMU_LOG
       Talks SLCAN straight to the firmware's serial line (no bus): garbage, half and over-long
@@ -90,18 +91,26 @@ def watchdog(addr, candump, out_path):
     bus = Socketcand(addr)
     t = last_time_us(candump)
     t -= t % PERIOD_US
-    frames = []
-    for _ in range(8):
+    frames, lines = [], []
+    for period in range(8):
         t += PERIOD_US
         bus.control(f"time {t}")
         bus.s.sendall(b"< send 080 0 >")
+        got = []
         for m in bus.messages(0.5):
             w = m.split()
             if len(w) >= 4 and w[1] == "frame":
                 data = w[4] if len(w) > 5 else ""
-                frames.append(f"{w[2].upper()}#{data.upper()}")
+                got.append(f"{w[2].upper()}#{data.upper()}")
+        frames += got
+        # Period by period, in identifier order: the bus arbitrates the frames of one client
+        # write together (lowest identifier first), and the host node writes its answer to a
+        # SYNC in one call, while the firmware's reaches the bridge line by line over QEMU's
+        # serial socket (split across writes as the bytes come). The frames and their data are
+        # compared; their order within a period is the transport's.
+        lines += [f"{period} {x}" for x in sorted(got, key=lambda x: (int(x.split("#")[0], 16), x))]
     with open(out_path, "w") as f:
-        f.write("".join(x + "\n" for x in frames))
+        f.write("".join(x + "\n" for x in lines))
     emcy = [x for x in frames if int(x.split("#")[0], 16) == EMCY_ID]
     codes = [int(x.split("#")[1][2:4] + x.split("#")[1][0:2], 16) for x in emcy if len(x.split("#")[1]) >= 4]
     if 0x8250 not in codes:
