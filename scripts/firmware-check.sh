@@ -37,6 +37,11 @@
 #      actions_64_int8.f32 (evaluator over the slot) and to the host twin (controller); a transfer cut
 #      in the middle (then a reset) and one with a corrupt segment leave the old slot active;
 #      instructions, RAM and stack of the slot image within budget.
+#   9. the CAN node (firmware/node, docs/firmware.md "The firmware as a CAN node"): host tests and
+#      clippy of its target-independent crates (firmware/slcan, firmware/slot-mirror); the QEMU build
+#      (SLCAN on USART1, RAM-backed NorFlash) and the board build (bxCAN1, the STM32F405's flash
+#      sectors as NorFlash) compile, clippy-clean, their flash and static RAM within budget
+#      (node_*); scripts/firmware-sil.sh runs the QEMU build in the closed loop.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
@@ -227,7 +232,7 @@ check_budget() {
 }
 # --- 8. A/B policy slots (a function: FIRMWARE_SLOTS_ONLY=1 runs it alone, after case 1) --------
 case_slots() {
-    step "8/8 A/B policy slots: the recorded flash of the int8 golden into the inactive slot, cut and corrupt transfers"
+    step "8/9 A/B policy slots: the recorded flash of the int8 golden into the inactive slot, cut and corrupt transfers"
     FLASH_REC="$GOLDEN/flash_int8.frames"
     build_fw "$WORK/slots.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features slots
     rc=$(run_qemu "$WORK/slots.elf" mps2-an386 "$WORK/slots.log")
@@ -262,9 +267,47 @@ case_slots() {
     check_budget slots_stack_bytes "$slots_stack" "bytes of peak stack"
 }
 
+# --- 9. the CAN node: QEMU and board builds, footprint (a function: FIRMWARE_NODE_ONLY=1 runs it alone)
+case_node() {
+    step "9/9 CAN node (firmware/node): QEMU build (SLCAN) and board build (bxCAN, flash), footprint"
+    local variant elf flash ram
+    # The node's target-independent parts, on the host: the SLCAN codec and the slot mirror.
+    (cd "$FW" && cargo test --quiet --locked --target "$HOST" -p dex-slcan -p dex-slot-mirror 2>&1 |
+        grep -E '^test result' | sed 's/^/   /') || die "dex-slcan / dex-slot-mirror tests failed"
+    (cd "$FW" && cargo clippy --quiet --locked --target "$HOST" -p dex-slcan -p dex-slot-mirror --all-targets -- -D warnings) ||
+        die "dex-slcan / dex-slot-mirror clippy failed"
+    for variant in qemu board; do
+        local feats=()
+        [ "$variant" = board ] && feats=(--no-default-features --features board)
+        (cd "$FW" && cargo build --release --quiet --locked -p dex-firmware-node "${feats[@]}") ||
+            die "CAN node build failed ($variant)"
+        (cd "$FW" && cargo clippy --release --quiet --locked -p dex-firmware-node "${feats[@]}" -- -D warnings) ||
+            die "CAN node clippy failed ($variant)"
+        elf="$WORK/node-$variant.elf"
+        cp "$FW_TARGET/$TARGET/release/dex-node" "$elf"
+        read -r flash ram < <(arm-none-eabi-size -A "$elf" | awk '
+            $1 ~ /^\.(vector_table|text|rodata|data)$/ { f += $2 }
+            $1 ~ /^\.(data|bss|uninit)$/ { r += $2 }
+            END { print f, r }')
+        [ -n "$flash" ] && [ -n "$ram" ] || die "no footprint for $elf"
+        echo "   node $variant: flash $flash B, static RAM $ram B"
+        if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
+            sed -i "s/^node_${variant}_flash_bytes .*/node_${variant}_flash_bytes $flash/;
+                s/^node_${variant}_static_ram_bytes .*/node_${variant}_static_ram_bytes $ram/" "$BUDGET"
+        fi
+        check_budget "node_${variant}_flash_bytes" "$flash" "bytes of flash"
+        check_budget "node_${variant}_static_ram_bytes" "$ram" "bytes of static RAM"
+    done
+}
+if [ "${FIRMWARE_NODE_ONLY:-0}" = 1 ]; then
+    case_node
+    echo "firmware-check: OK (CAN node only: case 9)"
+    exit 0
+fi
+
 # --- 1. golden policy ----------------------------------------------------------------------------
 GOLDEN="$ROOT/runtime/tests/golden"
-step "1/8 golden 44-64-64-9 policy on mps2-an386"
+step "1/9 golden 44-64-64-9 policy on mps2-an386"
 build_fw "$WORK/golden.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386
 rc=$(run_qemu "$WORK/golden.elf" mps2-an386 "$WORK/golden.log")
 expect_ok "$rc" "$WORK/golden.log" golden
@@ -288,7 +331,7 @@ host_ref "$WORK/golden_int8.host" "$GOLDEN/jaco_64_int8.dxpl"
 same_as_host "$WORK/golden_int8.log" "$WORK/golden_int8.host" "golden int8"
 
 # --- 2. default-size policy, budget and footprint -------------------------------------------------
-step "2/8 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
+step "2/9 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instructions, footprint"
 (cd "$FW" && cargo build --release --quiet --target "$HOST" -p dex-firmware-host) || die "host twin build failed"
 "$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256.dxpl" 2>/dev/null ||
     die "make-policy failed"
@@ -315,6 +358,8 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "# slots_*: the A/B slot image of case 8 (golden 44-64-64-9 policy, --features slots): one control"
         echo "# period over a slot, the worst flash request (the end's verification of the 9.5 kB int8 file), code"
         echo "# flash less policy, trace and flash recording, static RAM (two 32 KiB + 32 B slots), peak stack."
+        echo "# node_*: the CAN node (firmware/node, case 9): flash (.vector_table + .text + .rodata + .data) and"
+        echo "# static RAM (.data + .bss + .uninit) of its QEMU build (SLCAN, RAM-backed NorFlash) and board build."
         echo "# Re-bless only on purpose: FIRMWARE_BLESS=1 scripts/firmware-check.sh (the slots_* lines alone:"
         echo "# FIRMWARE_BLESS=1 FIRMWARE_SLOTS_ONLY=1 scripts/firmware-check.sh)"
         echo "mlp_step $mlp_max"
@@ -332,6 +377,10 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "slots_flash_code_bytes BLESS_PENDING"
         echo "slots_static_ram_bytes BLESS_PENDING"
         echo "slots_stack_bytes BLESS_PENDING"
+        echo "node_qemu_flash_bytes BLESS_PENDING"
+        echo "node_qemu_static_ram_bytes BLESS_PENDING"
+        echo "node_board_flash_bytes BLESS_PENDING"
+        echo "node_board_static_ram_bytes BLESS_PENDING"
     } >"$BUDGET"
     echo "   blessed $BUDGET"
 fi
@@ -344,7 +393,7 @@ check_budget static_ram_bytes "$static_ram" "bytes of static RAM"
 check_budget stack_bytes "$stack_max" "bytes of peak stack"
 
 # --- 3. second board ------------------------------------------------------------------------------
-step "3/8 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
+step "3/9 44-256-256-9 policy on netduinoplus2 (STM32F405 memory map)"
 build_fw "$WORK/nd.elf" "$WORK/jaco_256.dxpl" netduinoplus2
 rc=$(run_qemu "$WORK/nd.elf" netduinoplus2 "$WORK/nd.log")
 expect_ok "$rc" "$WORK/nd.log" netduinoplus2
@@ -357,7 +406,7 @@ if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
 fi
 
 # --- 4. corrupted policy: the fault state ---------------------------------------------------------
-step "4/8 corrupted policy file: fault state, non-zero exit, no hang"
+step "4/9 corrupted policy file: fault state, non-zero exit, no hang"
 python3 - "$GOLDEN/jaco_64.dxpl" "$WORK/corrupt.dxpl" <<'EOF'
 import sys
 b = bytearray(open(sys.argv[1], "rb").read())
@@ -372,7 +421,7 @@ grep -q '^[AC] ' "$WORK/corrupt.log" && die "corrupted policy: actions were prod
 echo "   $(grep '^FAULT' "$WORK/corrupt.log") (exit $rc)"
 
 # --- 5. HardFault -----------------------------------------------------------------------------------
-step "5/8 HardFault handler exits non-zero"
+step "5/9 HardFault handler exits non-zero"
 build_fw "$WORK/hardfault.elf" "$GOLDEN/jaco_64.dxpl" mps2-an386 --features hardfault-test
 rc=$(run_qemu "$WORK/hardfault.elf" mps2-an386 "$WORK/hardfault.log")
 [ "$rc" = 1 ] || die "hardfault test: exit status $rc, want 1 (124 = hang)"
@@ -380,7 +429,7 @@ grep -q '^FAULT hardfault' "$WORK/hardfault.log" || die "hardfault test: no FAUL
 echo "   $(grep '^FAULT' "$WORK/hardfault.log") (exit $rc)"
 
 # --- 6. int8 policy file ---------------------------------------------------------------------------
-step "6/8 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
+step "6/9 int8 policy file (format v2, W8A16, per-output-channel scales) of the 44-256-256-9 policy"
 "$FW_TARGET/$HOST/release/fw-host" make-policy 256,256 3 "$WORK/jaco_256_int8.dxpl" int8 2>/dev/null ||
     die "make-policy int8 failed"
 run_policy int8 "$WORK/jaco_256_int8.dxpl" int8
@@ -402,7 +451,7 @@ check_budget int8_flash_code_bytes "$code_flash" "bytes of code flash"
 check_budget int8_stack_bytes "$int8_stack_max" "bytes of peak stack"
 
 # --- 7. a trained policy and its int8 twin ---------------------------------------------------------
-step "7/8 trained Reach policy (trained for int8) and its int8 twin on mps2-an386"
+step "7/9 trained Reach policy (trained for int8) and its int8 twin on mps2-an386"
 TRAINED="$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl"
 (cd "$ROOT" && cargo run --quiet --locked -p dex-policy-tool --bin policy -- \
     quantise "$TRAINED" "$WORK/trained_int8.dxpl" | sed 's/^/   /') || die "policy quantise failed"
@@ -414,5 +463,6 @@ done
 check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"
 
 case_slots
+case_node
 
 echo "firmware-check: OK"

@@ -122,6 +122,11 @@ fi
 CARGO_TARGET_DIR="$alt" FIRMWARE_QUICK=1 bash scripts/firmware-check.sh
 rm -rf "$alt"
 
+step "firmware as the controller node in the closed loop (scripts/firmware-sil.sh)"
+# QEMU's netduinoplus2 runs firmware/node; hil-sim (built with --all-features by cargo test above)
+# bridges its SLCAN serial line to the lockstep bus with the MuJoCo plant (docs/firmware.md).
+FIRMWARE_SIL_TRAINER=1 bash scripts/firmware-sil.sh
+
 step "python harness (pytest): its output"
 pytest_rc=0
 wait "$pytest_pid" || pytest_rc=$?

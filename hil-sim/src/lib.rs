@@ -12,6 +12,7 @@
 //! - [`flash`]: policy flashing over CAN: the node's slot storage, and the tool's SDO client
 //!   (CiA 302-3 program download: 0x1F50 data, 0x1F51 start, 0x1F56 check).
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
+//! - [`slcan_bridge`]: joins an SLCAN serial line (the firmware node under QEMU) to the bus.
 //! - [`wire`]: classic CAN frames' time on the wire (bit stuffing) and arbitration, the model of the
 //!   wire-time figures.
 //! - [`wire_fd`]: CAN FD frames' time on the wire (two bit rates), a model for budgets; the bus
@@ -39,5 +40,6 @@ pub mod plant;
 #[cfg(feature = "socketcan")]
 pub mod port;
 pub mod protocol;
+pub mod slcan_bridge;
 pub mod wire;
 pub mod wire_fd;

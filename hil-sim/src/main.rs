@@ -102,6 +102,25 @@ enum Command {
         #[arg(long)]
         policy: Option<PathBuf>,
     },
+    /// Join an SLCAN serial line (the firmware node in QEMU, `-serial tcp:HOST:PORT,server=on`)
+    /// to a bus started by another process; runs until either side closes. Prints
+    /// `hil-sim slcan-bridge ready: ...` once the device has answered the start-up version
+    /// request; no bus frame goes to the device before (a UART not yet enabled loses them).
+    SlcanBridge {
+        /// The bus, e.g. 127.0.0.1:29536.
+        #[arg(long)]
+        connect: SocketAddr,
+        /// The serial line's TCP socket, e.g. 127.0.0.1:29600.
+        #[arg(long)]
+        serial: SocketAddr,
+        /// Stamp frames to the device with their bus time (Lawicel time stamps): for a
+        /// `hil-sim bus --lockstep` bus, so that the firmware runs on bus time.
+        #[arg(long)]
+        stamp: bool,
+        /// Seconds to wait for the device's answer to the start-up version request.
+        #[arg(long, default_value_t = 10.0)]
+        ready_timeout: f64,
+    },
     /// Write a random-weight policy file on the cell's layout (or a mismatched one) for tests.
     MakePolicy {
         /// Output file.
@@ -309,6 +328,12 @@ fn main() -> Result<()> {
             policy,
         } => bench_command(cycles, realtime, policy),
         Command::Node { socketcan, policy } => node_command(&socketcan, policy),
+        Command::SlcanBridge {
+            connect,
+            serial,
+            stamp,
+            ready_timeout,
+        } => slcan_bridge_command(connect, serial, stamp, ready_timeout),
         Command::MakePolicy {
             out,
             hidden,
@@ -393,6 +418,33 @@ fn bus_command(args: BusArgs) -> Result<()> {
     }
     eprintln!("bus: {:?}", bus.stats());
     bus.shutdown();
+    Ok(())
+}
+
+fn slcan_bridge_command(
+    bus: SocketAddr,
+    serial: SocketAddr,
+    stamp: bool,
+    ready_timeout: f64,
+) -> Result<()> {
+    let ready_timeout = Duration::try_from_secs_f64(ready_timeout).context("--ready-timeout")?;
+    let cfg = dex_hil_sim::slcan_bridge::BridgeConfig {
+        bus,
+        serial,
+        stamp,
+        ready_timeout,
+    };
+    let bridge = dex_hil_sim::slcan_bridge::Bridge::connect(cfg)?;
+    // Scripts wait for this line before they put frames for the device on the bus.
+    println!(
+        "hil-sim slcan-bridge ready: device {} after {} version request(s)",
+        bridge.device_version(),
+        bridge.stats().probes
+    );
+    std::io::stdout().flush()?;
+    let stop = AtomicBool::new(false);
+    let stats = bridge.run(&stop)?;
+    eprintln!("slcan-bridge: {stats:?}");
     Ok(())
 }
 
