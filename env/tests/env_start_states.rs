@@ -249,7 +249,7 @@ fn demonstration_states_with_the_brick_in_the_air_stay_held_after_a_hand_over() 
 #[test]
 fn revisits_hand_over_the_listed_original_starts_at_their_rate() {
     let scene = scene();
-    let mut env = JacoEnv::new(&scene, EnvConfig::new(Task::Stack));
+    let mut env = JacoEnv::new(scene, EnvConfig::new(Task::Stack));
     let listed = [11u64, 22, 33];
     let revisits = |probability| Revisits {
         seeds: listed.to_vec(),
