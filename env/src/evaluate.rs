@@ -251,9 +251,6 @@ pub fn episode_outcomes(
     settings: &EvalSettings,
     on_episode: &(dyn Fn() + Sync),
 ) -> Result<Vec<(f64, bool)>, EvalError> {
-    if settings.episodes == 0 {
-        return Err(EvalError::NoEpisodes);
-    }
     let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = decode_jaco_policy(aligned.as_bytes())?;
     outcomes_in_order(
@@ -280,9 +277,6 @@ pub fn teacher_outcomes(
     settings: &EvalSettings,
     on_episode: &(dyn Fn() + Sync),
 ) -> Result<Vec<(f64, bool)>, EvalError> {
-    if settings.episodes == 0 {
-        return Err(EvalError::NoEpisodes);
-    }
     let teacher = MarkovDemonstrator::new(settings.env.task);
     outcomes_in_order(
         settings,
@@ -304,15 +298,18 @@ pub fn teacher_outcomes(
 
 /// Runs episode `i` of `settings.episodes` (from [`episode_seed`]`(settings.seed, i)`) with `run`
 /// on `settings.threads` threads, each with its own state from `init`; the outcomes in episode
-/// order.
+/// order. No episodes is an error.
 fn outcomes_in_order<S>(
     settings: &EvalSettings,
     init: impl Fn() -> Result<S, EvalError> + Sync,
     run: impl Fn(&mut S, u64) -> Result<(f64, bool), EvalError> + Sync,
     on_episode: &(dyn Fn() + Sync),
 ) -> Result<Vec<(f64, bool)>, EvalError> {
+    if settings.episodes == 0 {
+        return Err(EvalError::NoEpisodes);
+    }
     let next = AtomicU32::new(0);
-    let threads = settings.threads.clamp(1, settings.episodes.max(1) as usize);
+    let threads = settings.threads.clamp(1, settings.episodes as usize);
     type Outcomes = Vec<(u32, (f64, bool))>;
     let results: Vec<Result<Outcomes, EvalError>> = std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads)
