@@ -370,3 +370,55 @@ fn component_settings_out_of_range_are_refused_before_training() {
         "other observation size"
     );
 }
+
+#[test]
+fn a_residual_actor_keeps_its_base_bit_for_bit_and_learns_the_correction() {
+    use dex_trainer::learn::residual;
+    let stop = AtomicBool::new(false);
+    // A base that does not solve the task: a fresh actor's random weights.
+    let base_cfg = small_config(8);
+    let base = Trainer::new(base_cfg.clone(), 6, 2).expect("trainer");
+    let base_params = base.actor().1.to_vec();
+    let mut cfg = base_cfg;
+    cfg.ddpg.residual = Some(32);
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    // The base's shape is what a residual run takes; the composed actor is wider.
+    assert!(t.set_initial_actor(vec![0.0; 7]).is_err());
+    t.set_initial_actor(base_params.clone()).expect("fresh run");
+    let widths: Vec<usize> = t.actor().0.spec().layers.iter().map(|l| l.size).collect();
+    assert_eq!(widths, vec![96, 96, 2]);
+    let start = t.actor().1.to_vec();
+    let mut frozen = vec![1.0f32; start.len()];
+    residual::freeze_base(t.actor().0, &cfg.ddpg.actor_hidden, &mut frozen).expect("mask");
+    // It starts as the base: same actions on the same observations.
+    let (b_net, w_net) = (base.actor().0, t.actor().0);
+    let mut rng = Rng::seed_from_u64(5);
+    let x: Vec<f32> = (0..6 * 8).map(|_| rng.normal(0.0, 1.0)).collect();
+    let (mut sb, mut sw) = (b_net.scratch(8), w_net.scratch(8));
+    let yb = b_net
+        .forward(&base_params, &x, 8, &mut sb)
+        .unwrap()
+        .to_vec();
+    let yw = w_net.forward(&start, &x, 8, &mut sw).unwrap().to_vec();
+    assert!(yb.iter().zip(&yw).all(|(a, b)| (a - b).abs() < 1e-6));
+    let s = t.run(env, 6_000, &stop, &mut quiet).expect("run");
+    let best = s.records.iter().map(|r| r.success_rate).fold(0.0, f64::max);
+    assert!(
+        best >= 0.9,
+        "the residual did not learn: best success {best}"
+    );
+    let end = t.actor().1;
+    let (mut kept, mut moved) = (0, 0);
+    for ((&a, &b), &m) in start.iter().zip(end).zip(&frozen) {
+        if m == 0.0 {
+            assert_eq!(a.to_bits(), b.to_bits(), "a frozen parameter moved");
+            kept += 1;
+        } else if a != b {
+            moved += 1;
+        }
+    }
+    assert!(kept > 0 && moved > 0, "{kept} kept, {moved} moved");
+    // The same run is refused on a base of another shape.
+    let mut other = Trainer::new(cfg, 6, 2).expect("trainer");
+    assert!(other.set_initial_actor(start).is_err());
+}

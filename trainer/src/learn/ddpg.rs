@@ -86,6 +86,32 @@ pub struct DdpgConfig {
     pub engine: Engine,
     /// Weight of the action penalty `action_l2 / N sum |mu(s)|^2` in the actor's loss (0: none).
     pub action_l2: f32,
+    /// A residual actor on the frozen starting policy ([`crate::learn::residual`]): this many
+    /// residual units beside the base's in every hidden layer (the actor's hidden widths are
+    /// `actor_hidden[i] + residual`; `actor_hidden` stays the base's). `None`: the actor is one
+    /// network that trains whole (the paper's).
+    pub residual: Option<usize>,
+}
+
+/// The largest residual width (the evaluator's layers are at most 1024 wide).
+pub const MAX_RESIDUAL: usize = 768;
+
+impl DdpgConfig {
+    /// The actor's hidden widths: `actor_hidden`, widened by the residual units when on.
+    pub fn actor_widths(&self) -> Vec<usize> {
+        match self.residual {
+            Some(r) => crate::learn::residual::widened(&self.actor_hidden, r),
+            None => self.actor_hidden.clone(),
+        }
+    }
+
+    /// These settings without the residual: the base network a starting policy must match.
+    pub fn base(&self) -> DdpgConfig {
+        DdpgConfig {
+            residual: None,
+            ..self.clone()
+        }
+    }
 }
 
 impl Default for DdpgConfig {
@@ -100,6 +126,7 @@ impl Default for DdpgConfig {
             target: TargetUpdate::default(),
             engine: Engine::default(),
             action_l2: 0.0,
+            residual: None,
         }
     }
 }
@@ -128,7 +155,7 @@ impl Networks {
         let actor = Mlp::new(
             MlpSpec::stack(
                 obs_dim,
-                &cfg.actor_hidden,
+                &cfg.actor_widths(),
                 Activation::Relu,
                 false,
                 act_dim,

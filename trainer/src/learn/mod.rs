@@ -11,7 +11,8 @@
 //! - Beyond the paper, each off by default: [`demo_data`] (a demonstration buffer, a batch fraction
 //!   from it and a Q-filtered cloning term), [`td3`] (twin critics, target smoothing, delayed actor
 //!   updates), [`n_step`] (n-step returns, correct at time limits), [`noise`] (temporally
-//!   correlated exploration with a per-joint scale) and the action penalty in [`ddpg::ActorLoss`].
+//!   correlated exploration with a per-joint scale), the action penalty in [`ddpg::ActorLoss`] and
+//!   [`residual`] (a residual actor on a frozen starting policy, one plain MLP).
 //! - [`env`](mod@env): the [`Env`] trait the learner drives, and a toy [`PointMass`] task for tests.
 //! - [`trainer`]: [`Trainer`] runs W worker threads (W = 1 is DPG-R) with R updates per environment step,
 //!   evaluates on the paper's schedule and streams [`EvalRecord`]s; [`checkpoint`] saves and restores it.
@@ -36,6 +37,7 @@ pub mod noise;
 pub mod norm;
 pub mod quantise;
 pub mod replay;
+pub mod residual;
 pub mod rng;
 pub mod td3;
 pub mod trainer;

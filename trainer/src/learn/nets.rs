@@ -355,8 +355,8 @@ impl Mlp {
                     .zip(xhat.chunks_exact_mut(l.fan_out))
                     .zip(inv_std.iter_mut())
                 {
-                    let mean = row.iter().sum::<f32>() / n;
-                    let var = row.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
+                    let mean = lane_sum(row, |v| v) / n;
+                    let var = lane_sum(row, |v| (v - mean) * (v - mean)) / n;
                     let inv = 1.0 / (var + LN_EPS).sqrt();
                     *is = inv;
                     for (((o, xh), g), s) in row.iter_mut().zip(xh).zip(gain).zip(shift) {
@@ -473,13 +473,11 @@ impl Mlp {
                     .zip(inv_std)
                 {
                     // dxhat = dy * gain; dz = inv/n * (n dxhat - sum dxhat - xhat sum(dxhat xhat)).
-                    let mut sum = 0.0f32;
-                    let mut sum_x = 0.0f32;
-                    for ((d, &g), &x) in dy.iter_mut().zip(gain).zip(xh) {
+                    for (d, &g) in dy.iter_mut().zip(gain) {
                         *d *= g;
-                        sum += *d;
-                        sum_x += *d * x;
                     }
+                    let sum = lane_sum(dy, |d| d);
+                    let sum_x = lane_dot(dy, xh);
                     for (d, &x) in dy.iter_mut().zip(xh) {
                         *d = inv / n * (n * *d - sum - x * sum_x);
                     }
@@ -539,6 +537,40 @@ impl Mlp {
         }
         Ok(())
     }
+}
+
+/// Accumulators of [`lane_sum`] and [`lane_dot`]: one 256-bit register of f32.
+const LANES: usize = 8;
+
+/// `sum f(x_i)` with [`LANES`] independent accumulators. A single running f32 sum is a chain of
+/// dependent additions the compiler may not reorder, which kept the critic's layer norm scalar
+/// (~10% of an update at the 128-wide paper networks, a `perf` profile in docs/benchmarks.md);
+/// separate lanes vectorise.
+#[inline]
+fn lane_sum(x: &[f32], f: impl Fn(f32) -> f32) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let chunks = x.chunks_exact(LANES);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for (a, &v) in acc.iter_mut().zip(c) {
+            *a += f(v);
+        }
+    }
+    acc.iter().sum::<f32>() + rest.iter().map(|&v| f(v)).sum::<f32>()
+}
+
+/// `sum x_i y_i` with [`LANES`] independent accumulators (see [`lane_sum`]).
+#[inline]
+fn lane_dot(x: &[f32], y: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let (cx, cy) = (x.chunks_exact(LANES), y.chunks_exact(LANES));
+    let (rx, ry) = (cx.remainder(), cy.remainder());
+    for (a, b) in cx.zip(cy) {
+        for ((s, &u), &v) in acc.iter_mut().zip(a).zip(b) {
+            *s += u * v;
+        }
+    }
+    acc.iter().sum::<f32>() + rx.iter().zip(ry).map(|(&u, &v)| u * v).sum::<f32>()
 }
 
 /// Activations of the last forward pass and backward buffers, sized for a maximum batch.

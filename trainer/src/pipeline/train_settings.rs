@@ -61,6 +61,12 @@ pub enum SettingsError {
          it needs init_policy (--init-policy) or the clone stage ([clone], --clone)"
     )]
     GuardWithoutInit,
+    /// A residual actor without a starting policy to be the residual's base.
+    #[error(
+        "run.ddpg.residual learns a correction on top of the policy the run starts from: it \
+         needs init_policy (--init-policy) or the clone stage ([clone], --clone)"
+    )]
+    ResidualWithoutInit,
     /// `start.failed_starts` without a starting policy to screen.
     #[error(
         "start.failed_starts screens the policy a run starts from: it needs init_policy \
@@ -767,6 +773,9 @@ impl TrainSettings {
         }
         if self.guard_episodes > 0 && self.init_policy.is_none() && self.clone.is_none() {
             return Err(SettingsError::GuardWithoutInit);
+        }
+        if self.run.ddpg.residual.is_some() && self.init_policy.is_none() && self.clone.is_none() {
+            return Err(SettingsError::ResidualWithoutInit);
         }
         let f = &self.start;
         if f.failed_starts > 0 {

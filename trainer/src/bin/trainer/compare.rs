@@ -9,13 +9,13 @@ use anyhow::{Context, bail};
 use clap::Args;
 use serde::Serialize;
 
-use dex_trainer::env::evaluate::{EvalSettings, episode_outcomes, teacher_outcomes};
+use dex_trainer::env::evaluate::{episode_outcomes, teacher_outcomes};
 use dex_trainer::env::paired::Paired;
-use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::evaluate::{PolicyEval, wilson_interval};
 use dex_trainer::files::atomic_write::write_atomic;
-use dex_trainer::pipeline::train_settings::{RewardArg, TaskArg};
+use dex_trainer::pipeline::train_settings::TaskArg;
 
+use crate::eval_flags::EvalFlags;
 use crate::train::{bar, load_scene};
 
 /// `trainer compare` flags.
@@ -31,15 +31,9 @@ pub struct CompareArgs {
     /// Episodes (random starts), the same for every entry.
     #[arg(long, default_value_t = 1000)]
     episodes: u32,
-    /// Seed of the start states (3000000: the Table II starts).
-    #[arg(long, default_value_t = EVAL_SEED)]
-    seed: u64,
-    /// Worker threads.
-    #[arg(long, default_value_t = 2)]
-    threads: usize,
-    /// Skip the CAN quantisation of the policies' observations and actions.
-    #[arg(long)]
-    no_can_quantisation: bool,
+    /// The starts, threads and bus.
+    #[command(flatten)]
+    at: EvalFlags,
     /// Also write the comparison as JSON (every entry's successes and interval, every pair's
     /// discordant starts and p-value, the command, the wall time).
     #[arg(long)]
@@ -100,14 +94,7 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
         bail!("no policy file given");
     };
     let scene = load_scene()?;
-    let settings = EvalSettings {
-        env: RewardArg::TaskDefault.env_config(task.task()),
-        episodes: args.episodes,
-        seed: args.seed,
-        threads: args.threads,
-        can_quantisation: !args.no_can_quantisation,
-        envelope: false,
-    };
+    let settings = args.at.settings(task, args.episodes, false);
     let started = Instant::now();
     let entries = files.len() + usize::from(args.teacher);
     let pb = bar(
@@ -128,14 +115,14 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     pb.finish_and_clear();
     println!(
         "{task:?}, the same {} starts from seed {} for every entry:",
-        args.episodes, args.seed
+        args.episodes, args.at.seed
     );
     let mut report = Comparison {
         command: std::env::args().collect::<Vec<_>>().join(" "),
         task: format!("{task:?}"),
-        start_seed: args.seed,
+        start_seed: args.at.seed,
         episodes: args.episodes,
-        can_quantisation: !args.no_can_quantisation,
+        can_quantisation: !args.at.no_can_quantisation,
         entries: Vec::new(),
         pairs: Vec::new(),
         wall_s: 0.0,

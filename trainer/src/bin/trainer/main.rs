@@ -15,6 +15,7 @@
 mod compare;
 mod demos;
 mod distributed;
+mod eval_flags;
 mod figure;
 mod imitate;
 mod train;
@@ -246,6 +247,11 @@ struct TrainArgs {
     /// moves: the critic rates the starting policy's own transitions first.
     #[arg(long)]
     critic_warmup_updates: Option<u64>,
+    /// A residual actor on the frozen starting policy (--init-policy or --clone): this many
+    /// residual units beside the base's in every hidden layer, summed before the output's tanh
+    /// (run.ddpg.residual; the exported file is one MLP, the base's widths plus this).
+    #[arg(long, value_name = "UNITS")]
+    residual: Option<usize>,
     /// Store the teacher's (Markov demonstrator's) action with every collected transition and
     /// apply the cloning term (--bc-weight) to every batch row toward it (run.teacher_labels).
     #[arg(long)]
@@ -262,15 +268,9 @@ struct EvalArgs {
     /// Episodes (random starts).
     #[arg(long, default_value_t = 100)]
     episodes: u32,
-    /// Seed of the start states.
-    #[arg(long, default_value_t = EVAL_SEED)]
-    seed: u64,
-    /// Worker threads.
-    #[arg(long, default_value_t = 2)]
-    threads: usize,
-    /// Skip the CAN quantisation of observations and actions.
-    #[arg(long)]
-    no_can_quantisation: bool,
+    /// The starts, threads and bus.
+    #[command(flatten)]
+    at: eval_flags::EvalFlags,
     /// Apply the controller's safety envelope (its default settings) to every action, as the
     /// controller node does (docs/runtime.md).
     #[arg(long)]

@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use dex_runtime::interface::ACT_DIM;
 use dex_trainer::env::Scene;
-use dex_trainer::evaluate::{EvalSettings, PolicyEval, evaluate_policy_file};
+use dex_trainer::evaluate::{PolicyEval, evaluate_policy_file};
 use dex_trainer::files::atomic_write::write_atomic;
 use dex_trainer::files::result_record::{RecordContext, ResultRecord};
 use dex_trainer::learn::Trainer;
@@ -44,6 +44,7 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.clone
         || a.features
         || a.critic_warmup_updates.is_some()
+        || a.residual.is_some()
         || a.teacher_labels
 }
 
@@ -179,6 +180,9 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if let Some(n) = a.critic_warmup_updates {
         s.run.critic_warmup_updates = n;
+    }
+    if let Some(n) = a.residual {
+        s.run.ddpg.residual = Some(n);
     }
     if a.teacher_labels {
         s.run.teacher_labels = true;
@@ -518,14 +522,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         );
     }
     let scene = load_scene()?;
-    let settings = EvalSettings {
-        env: RewardArg::TaskDefault.env_config(task.task()),
-        episodes: args.episodes,
-        seed: args.seed,
-        threads: args.threads,
-        can_quantisation: !args.no_can_quantisation,
-        envelope: args.envelope,
-    };
+    let settings = args.at.settings(task, args.episodes, args.envelope);
     let started = Instant::now();
     let pb = bar(
         u64::from(args.episodes),
@@ -557,7 +554,7 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
         args.policy.display(),
         task,
         args.episodes,
-        args.seed,
+        args.at.seed,
         describe(&e)
     );
     if let (Some(path), Some(section), Some(what)) = (&args.record, &args.section, &args.what) {
@@ -567,14 +564,14 @@ pub fn eval(args: &EvalArgs) -> anyhow::Result<()> {
             policy: &args.policy,
             bytes: &bytes,
             command: std::env::args().collect::<Vec<_>>().join(" "),
-            start_seed: args.seed,
-            can_quantisation: !args.no_can_quantisation,
+            start_seed: args.at.seed,
+            can_quantisation: !args.at.no_can_quantisation,
             envelope: args.envelope,
             wall_s: started.elapsed().as_secs_f64(),
             threads: if args.actions.is_some() {
                 1
             } else {
-                args.threads
+                args.at.threads
             },
         };
         let json = ResultRecord::new(&e, &ctx).to_json()?;
@@ -702,6 +699,36 @@ mod tests {
             s.validate(),
             Err(train_settings::SettingsError::GuardWithoutInit)
         ));
+    }
+
+    #[test]
+    fn a_residual_needs_a_base_and_a_width_in_range() {
+        let validate = |extra: &[&str]| {
+            let mut args = vec!["trainer", "train", "--task", "stack", "--preset", "paper"];
+            args.extend_from_slice(extra);
+            let cli = crate::Cli::try_parse_from(args).expect("flags parse");
+            let crate::Command::Train(a) = cli.command else {
+                panic!("not train")
+            };
+            let mut s = TrainSettings::default();
+            apply_flags(&mut s, &a);
+            s.validate()
+        };
+        assert!(matches!(
+            validate(&["--residual", "64"]),
+            Err(train_settings::SettingsError::ResidualWithoutInit)
+        ));
+        assert!(matches!(
+            validate(&["--residual", "0", "--clone"]),
+            Err(train_settings::SettingsError::Learner(_))
+        ));
+        assert!(matches!(
+            validate(&["--residual", "5000", "--clone"]),
+            Err(train_settings::SettingsError::Learner(_))
+        ));
+        let s = settings(&["--task", "stack", "--clone", "--residual", "64"]);
+        assert_eq!(s.run.ddpg.residual, Some(64));
+        assert_eq!(s.run.ddpg.actor_widths(), vec![320, 320]);
     }
 
     #[test]

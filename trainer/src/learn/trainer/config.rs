@@ -155,6 +155,20 @@ impl RunConfig {
         if !(self.ddpg.gamma >= 0.0 && self.ddpg.gamma <= 1.0) {
             return bad("ddpg.gamma", "must be in [0, 1]");
         }
+        if let Some(r) = self.ddpg.residual {
+            if r == 0 || r > crate::learn::ddpg::MAX_RESIDUAL {
+                return bad(
+                    "ddpg.residual",
+                    "the residual's width must be in 1..=768 units per hidden layer",
+                );
+            }
+            if self.ddpg.actor_hidden.is_empty() {
+                return bad(
+                    "ddpg.residual",
+                    "a residual needs a base with hidden layers (ddpg.actor_hidden)",
+                );
+            }
+        }
         self.noise.validate(None)?;
         self.td3.validate()?;
         self.demos.validate_with(self.teacher_labels)?;

@@ -176,7 +176,10 @@ impl Trainer {
 
     /// Starts a fresh run's actor and its target from `params` (e.g. an exported clone read by
     /// `crate::files::policy_import`); the critic keeps its fresh initialisation. Fails once the run has
-    /// stepped or updated, and when `params` does not fit the actor.
+    /// stepped or updated, and when `params` does not fit the actor. With a residual
+    /// (`ddpg.residual`), `params` is the base (`ddpg.actor_hidden`'s shape) and the actor
+    /// becomes it plus the residual's units, whose head starts at zero
+    /// ([`crate::learn::residual::compose`]).
     pub fn set_initial_actor(&mut self, params: Vec<f32>) -> Result<(), LearnError> {
         let p = self.progress();
         if p.transitions > 0 || p.updates > 0 {
@@ -185,6 +188,16 @@ impl Trainer {
                 why: "an initial actor is given to a fresh run only",
             });
         }
+        let params = match self.cfg.ddpg.residual {
+            // The policy given is the base: the residual's units and head join it.
+            Some(_) => crate::learn::residual::compose(
+                &self.nets.actor,
+                &self.cfg.ddpg.actor_hidden,
+                &params,
+                &self.shared.actor,
+            )?,
+            None => params,
+        };
         self.nets.actor.layers(&params)?;
         self.shared.target_actor.clone_from(&params);
         self.shared.actor = params;

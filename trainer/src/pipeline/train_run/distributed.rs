@@ -71,6 +71,9 @@ fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
     if s.clone.is_some() {
         return Err(TrainRunError::CloneDistributed);
     }
+    if s.run.ddpg.residual.is_some() {
+        return no("a residual actor (run.ddpg.residual: fine-tune a clone in a local run)");
+    }
     if s.start.failed_starts > 0 {
         return no("failed-start revisits (start.failed_starts: screen a clone in a local run)");
     }
@@ -192,4 +195,23 @@ fn load_demonstrations(s: &TrainSettings, dir: &Path) -> Result<Option<DemoBuffe
         env_cfg.reward,
         s.features,
     )?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_residual_actor_is_refused_across_ranks() {
+        let mut s = TrainSettings {
+            init_policy: Some("policies/stack.dxpl".into()),
+            ..TrainSettings::default()
+        };
+        assert!(check_distributable(&s).is_ok());
+        s.run.ddpg.residual = Some(64);
+        assert!(matches!(
+            check_distributable(&s),
+            Err(TrainRunError::NotDistributable { why }) if why.contains("residual")
+        ));
+    }
 }

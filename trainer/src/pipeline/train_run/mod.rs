@@ -486,8 +486,9 @@ impl TrainPlan {
                     path: path.clone(),
                     source,
                 })?;
+                // The file is the base of a residual actor, or the actor itself.
                 let nets = crate::learn::ddpg::Networks::new(
-                    &settings.run.ddpg,
+                    &settings.run.ddpg.base(),
                     settings.input_dim(),
                     ACT_DIM,
                 )?;
