@@ -728,7 +728,8 @@ mod tests {
         ));
         let s = settings(&["--task", "stack", "--clone", "--residual", "64"]);
         assert_eq!(s.run.ddpg.residual, Some(64));
-        assert_eq!(s.run.ddpg.actor_widths(), vec![320, 320]);
+        let widened: Vec<usize> = s.run.ddpg.actor_hidden.iter().map(|h| h + 64).collect();
+        assert_eq!(s.run.ddpg.actor_widths(), widened);
     }
 
     #[test]
