@@ -142,6 +142,9 @@ pub struct Networks {
     pub obs_dim: usize,
     /// Action length.
     pub act_dim: usize,
+    /// The actor's parameters that never train: a residual actor's base
+    /// ([`crate::learn::residual::frozen_ranges`]); empty without a residual.
+    pub actor_frozen: Vec<std::ops::Range<usize>>,
 }
 
 impl Networks {
@@ -174,11 +177,16 @@ impl Networks {
             ),
             cfg.engine,
         )?;
+        let actor_frozen = match cfg.residual {
+            Some(_) => crate::learn::residual::frozen_ranges(&actor, &cfg.actor_hidden)?,
+            None => Vec::new(),
+        };
         Ok(Networks {
             actor,
             critic,
             obs_dim,
             act_dim,
+            actor_frozen,
         })
     }
 }

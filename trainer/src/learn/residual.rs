@@ -16,6 +16,8 @@
 //! starts at zero ([`compose`]), so the run starts from the base policy exactly; the residual
 //! units start from the actor's usual random initialisation.
 
+use std::ops::Range;
+
 use super::LearnError;
 use super::nets::Mlp;
 
@@ -42,11 +44,6 @@ impl Block {
         } else {
             j >= self.base_out
         }
-    }
-
-    /// Whether bias `j` belongs to the residual (the output layer's bias is shared and trains).
-    fn trains_bias(&self, j: usize) -> bool {
-        self.last || j >= self.base_out
     }
 }
 
@@ -155,8 +152,45 @@ pub fn compose(
     Ok(p)
 }
 
-/// Zeroes the gradient of every parameter that is not the residual's (the base's blocks and the
-/// zero blocks from residual to base units), so that Adam leaves them as they are.
+/// The parameters that are not the residual's (the base's blocks and the zero blocks from
+/// residual to base units), as ranges of the actor's flat parameter vector: per row of a hidden
+/// layer its first `base_out` weights, that layer's first `base_out` biases, and the output
+/// layer's rows from the base's units. Computed once per network ([`super::ddpg::Networks`]).
+pub fn frozen_ranges(actor: &Mlp, base_hidden: &[usize]) -> Result<Vec<Range<usize>>, LearnError> {
+    let mut out = Vec::new();
+    for b in blocks(actor, base_hidden)? {
+        if b.last {
+            out.push(b.w..b.w + b.base_in * b.fan_out);
+            continue;
+        }
+        for i in 0..b.fan_in {
+            let row = b.w + i * b.fan_out;
+            out.push(row..row + b.base_out);
+        }
+        let bias = b.w + b.fan_in * b.fan_out;
+        out.push(bias..bias + b.base_out);
+    }
+    Ok(out)
+}
+
+/// Zeroes the gradient of every parameter in `frozen` ([`frozen_ranges`]), so that Adam leaves
+/// them as they are.
+pub fn zero_frozen(frozen: &[Range<usize>], grads: &mut [f32]) -> Result<(), LearnError> {
+    let len = grads.len();
+    for r in frozen {
+        grads
+            .get_mut(r.clone())
+            .ok_or(LearnError::Shape {
+                what: "actor gradient",
+                expected: r.end,
+                got: len,
+            })?
+            .fill(0.0);
+    }
+    Ok(())
+}
+
+/// [`frozen_ranges`] and [`zero_frozen`] in one call.
 pub fn freeze_base(
     actor: &Mlp,
     base_hidden: &[usize],
@@ -169,30 +203,16 @@ pub fn freeze_base(
             got: grads.len(),
         });
     }
-    for b in blocks(actor, base_hidden)? {
-        for i in 0..b.fan_in {
-            let row = b.w + i * b.fan_out;
-            for j in 0..b.fan_out {
-                if !b.trains(i, j) {
-                    grads[row + j] = 0.0;
-                }
-            }
-        }
-        let bias = b.w + b.fan_in * b.fan_out;
-        for j in 0..b.fan_out {
-            if !b.trains_bias(j) {
-                grads[bias + j] = 0.0;
-            }
-        }
-    }
-    Ok(())
+    zero_frozen(&frozen_ranges(actor, base_hidden)?, grads)
 }
 
 /// How many of the composed actor's parameters train (the residual's).
 pub fn trainable(actor: &Mlp, base_hidden: &[usize]) -> Result<usize, LearnError> {
-    let mut ones = vec![1.0f32; actor.num_params()];
-    freeze_base(actor, base_hidden, &mut ones)?;
-    Ok(ones.iter().filter(|&&g| g != 0.0).count())
+    let frozen: usize = frozen_ranges(actor, base_hidden)?
+        .iter()
+        .map(|r| r.len())
+        .sum();
+    Ok(actor.num_params() - frozen)
 }
 
 #[cfg(test)]

@@ -157,14 +157,8 @@ pub(super) fn update(
         }
     };
     actor_gradient(nets, actor, &local.critic, &loss, &mut local.bufs)?;
-    if cfg.ddpg.residual.is_some() {
-        // The base policy and the zero blocks stay as they are; only the residual trains.
-        crate::learn::residual::freeze_base(
-            &nets.actor,
-            &cfg.ddpg.actor_hidden,
-            &mut local.bufs.actor_grads,
-        )?;
-    }
+    // A residual actor's base and zero blocks stay as they are; only the residual trains.
+    crate::learn::residual::zero_frozen(&nets.actor_frozen, &mut local.bufs.actor_grads)?;
     // Pre-training is cloning: it may take its own learning rate (the fine-tuning's is lower).
     let pretrain_adam;
     let actor_adam = match cfg.demos.pretrain_actor_lr {
