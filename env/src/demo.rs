@@ -10,12 +10,12 @@ use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS};
 
 use nalgebra::{Rotation3, Vector2, Vector3, Vector6};
 
-use super::environment::{GRASP_DEPTH, JacoEnv};
+use super::environment::JacoEnv;
 use super::kinematics::{
     angular, arm_jacobian, damped_least_squares, down_rotation, linear, pinch_pose, pose_error,
     xmat_rotation,
 };
-use super::scene::{ARM_JOINTS, BRICK_HEIGHT};
+use super::scene::{ARM_JOINTS, BRICK_HEIGHT, GRASP_DEPTH};
 use super::tasks::Task;
 
 /// Height above the grasp point from which the hand descends, metres.

@@ -3,7 +3,7 @@
 //!
 //! - [`Scene`] compiles the model once ([`scene`]); it is shared (`Arc<MjModel>`, `Sync`) by every
 //!   [`JacoEnv`], each of which owns one `MjData`: one environment per thread scales across cores.
-//! - [`JacoEnv`] is the environment: [`JacoEnv::reset`] from a seed, [`JacoEnv::step`] with a 9-D action in
+//! - [`JacoEnv`] is the environment: [`JacoEnv::reset`] from a seed (the start states: [`random_start`]), [`JacoEnv::step`] with a 9-D action in
 //!   [-1, 1], [`JacoEnv::snapshot`] / [`JacoEnv::restore`].
 //! - [`Task`] (Grasp, StackInHand, Stack, Reach) fixes the start states and success; [`Reward`] is one of
 //!   the paper's reward functions, built from the reach/grasp/stack [`Predicates`] ([`rewards`]).
@@ -28,6 +28,7 @@ pub mod kinematics;
 pub mod markov_demo;
 pub mod observation;
 pub mod paired;
+pub mod random_start;
 pub mod rewards;
 pub mod rng;
 pub mod scene;

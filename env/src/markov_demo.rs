@@ -35,9 +35,9 @@ use super::demo::{
     APPROACH_HEIGHT, CARRY_CLEARANCE, LIFT_HEIGHT, MAX_SPEED, PRESHAPE, add, nearest_equivalent,
     sub, track, wrap_half_pi, yaw_of,
 };
-use super::environment::{GRASP_DEPTH, JacoEnv};
+use super::environment::JacoEnv;
 use super::kinematics::{pinch_pose, xmat_rotation};
-use super::scene::{ARM_JOINTS, BRICK_HALF_EXTENTS, BRICK_HEIGHT, FINGER_JOINTS};
+use super::scene::{ARM_JOINTS, BRICK_HALF_EXTENTS, BRICK_HEIGHT, FINGER_JOINTS, GRASP_DEPTH};
 use super::start_states::Demonstration;
 use super::tasks::Task;
 use mujoco_rs::prelude::MjtObjBase;

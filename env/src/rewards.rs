@@ -6,7 +6,7 @@
 //! - **grasp**: brick 1 is lifted *and held*: its origin (bottom face) is more than [`GRASP_HEIGHT`] =
 //!   3 cm above the table and within [`GRASP_HOLD_DISTANCE`] = 4 cm of the pinch site (the demonstrator's own "in hand" test). Height alone
 //!   also held for a brick tipped onto its end (its origin then sits 3.2 cm up) or leaning on brick 2;
-//!   in the hand the origin is 1.2 cm below the pinch site ([`super::environment::GRASP_DEPTH`]).
+//!   in the hand the origin is 1.2 cm below the pinch site ([`super::scene::GRASP_DEPTH`]).
 //! - **stack**: brick 1's origin, minus brick 2's stacking site (brick 2's origin + [`BRICK_HEIGHT`] along
 //!   brick 2's z axis), expressed in brick 2's frame, lies inside a box of half-lengths
 //!   [`STACK_HALF_EXTENTS`] (1 cm sideways, 8 mm vertically: tolerates a brick resting on the studs).

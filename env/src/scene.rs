@@ -15,6 +15,8 @@ use mujoco_rs::prelude::*;
 
 use super::error::EnvError;
 
+/// Height of the pinch site above brick 1's origin at which the demonstrator closes the fingers.
+pub const GRASP_DEPTH: f64 = 0.012;
 /// Physics step in seconds (dm_control: 2 ms).
 pub const PHYSICS_TIMESTEP: f64 = 0.002;
 /// Physics steps per control step: 25 x 2 ms = 50 ms (20 Hz).
