@@ -1,36 +1,34 @@
 //! The messages between the parameter server (rank 0) and the worker ranks, as bytes.
 //!
-//! Every message is a header, a body and a checksum (all little-endian):
+//! Every message is a fixed header, a body and a checksum:
 //!
 //! | bytes | field |
 //! |---|---|
 //! | 4 | magic `DXMP` |
-//! | 2 | [`VERSION`] |
+//! | 2 | [`VERSION`], little-endian |
 //! | 1 | kind: 1 [`Push`], 2 [`Params`], 3 stop |
 //! | 1 | zero |
-//! | 4 | sending rank |
-//! | 8 | body length in bytes |
-//! | body | per kind, below |
+//! | 4 | sending rank, little-endian |
+//! | 8 | body length in bytes, little-endian |
+//! | body | the kind's struct ([`Push`] or [`Params`]) in `postcard`; empty for a stop |
 //! | 4 | CRC-32 ([`dex_policy::CRC32`]) of everything before it |
 //!
-//! Arrays are a u32 count then the values. A [`Push`] body: transitions, episodes and updates
-//! since the previous push (u64 each), the sum of training returns (f64) and their count (u64),
-//! the networks (u32 count; per network its Adam steps u64, then the parameter change and the
-//! second-moment change as f32 arrays), then the evaluations (u32 count; per evaluation success
-//! rate, mean return and training return as f64 and the worker thread as u32). A [`Params`]
-//! body: the update count and the transitions of the whole run (u64 each), then per network
-//! (u32 count) the parameters, the target and the second moment (f32 arrays) and Adam's step
-//! count (u64). A stop has an empty body.
+//! The header stays fixed-width so that a receiver can refuse a message of another build or
+//! kind, or a truncated one, before it decodes anything; the body is `postcard`, the workspace's
+//! format for structured bytes (the checkpoints use it too).
 //!
 //! [`decode`] refuses anything that is not exactly such a message for the networks it expects:
-//! a wrong magic, version, kind, length or checksum, arrays of the wrong size, and non-finite
-//! values. The caller counts refusals; nothing of a refused message is applied.
+//! a wrong magic, version, kind, length or checksum, a body that does not decode or has bytes
+//! after it, arrays of the wrong size, and non-finite values. The caller counts refusals; nothing
+//! of a refused message is applied.
+
+use serde::{Deserialize, Serialize};
 
 use super::DistributedError;
 
 /// The wire version; a change of any layout above bumps it (version 1 ended in an FNV-1a 64
-/// checksum, version 2 in a CRC-32).
-pub const VERSION: u16 = 2;
+/// checksum, version 2 had a hand-made body, version 3 a `postcard` one).
+pub const VERSION: u16 = 3;
 /// Bytes of the checksum at the end.
 const SUM: usize = 4;
 const MAGIC: &[u8; 4] = b"DXMP";
@@ -40,7 +38,7 @@ const KIND_PARAMS: u8 = 2;
 const KIND_STOP: u8 = 3;
 
 /// One network's part of a [`Push`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NetDelta {
     /// Adam steps this rank applied to the network since its previous push.
     pub steps: u64,
@@ -51,7 +49,7 @@ pub struct NetDelta {
 }
 
 /// One evaluation of a worker rank, forwarded to the server's log.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RemoteEval {
     /// Fraction of evaluation episodes ending in success.
     pub success_rate: f64,
@@ -64,7 +62,7 @@ pub struct RemoteEval {
 }
 
 /// Worker rank to server: what the rank learned and collected since its previous push.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Push {
     /// Environment transitions since the previous push.
     pub transitions: u64,
@@ -83,7 +81,7 @@ pub struct Push {
 }
 
 /// One network's part of [`Params`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NetParams {
     /// Online parameters.
     pub params: Vec<f32>,
@@ -96,7 +94,7 @@ pub struct NetParams {
 }
 
 /// Server to worker rank: the shared state as it is now.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Params {
     /// Updates of the whole run.
     pub updates: u64,
@@ -117,246 +115,126 @@ pub enum Message {
     Stop,
 }
 
+fn bad(why: &'static str) -> DistributedError {
+    DistributedError::BadMessage { why }
+}
+
 /// Encodes `msg` as sent by `rank`.
-pub fn encode(rank: u32, msg: &Message) -> Vec<u8> {
-    let mut b = Vec::new();
-    b.extend_from_slice(MAGIC);
-    b.extend_from_slice(&VERSION.to_le_bytes());
+pub fn encode(rank: u32, msg: &Message) -> Result<Vec<u8>, DistributedError> {
     let kind = match msg {
         Message::Push(_) => KIND_PUSH,
         Message::Params(_) => KIND_PARAMS,
         Message::Stop => KIND_STOP,
     };
+    let mut b = Vec::with_capacity(HEADER);
+    b.extend_from_slice(MAGIC);
+    b.extend_from_slice(&VERSION.to_le_bytes());
     b.push(kind);
     b.push(0);
     b.extend_from_slice(&rank.to_le_bytes());
     b.extend_from_slice(&0u64.to_le_bytes());
-    match msg {
-        Message::Push(p) => {
-            for v in [p.transitions, p.episodes, p.updates] {
-                put_u64(&mut b, v);
-            }
-            put_u64(&mut b, p.return_sum.to_bits());
-            put_u64(&mut b, p.return_n);
-            put_u32(&mut b, p.nets.len() as u32);
-            for n in &p.nets {
-                put_u64(&mut b, n.steps);
-                put_f32s(&mut b, &n.delta);
-                put_f32s(&mut b, &n.dv);
-            }
-            put_u32(&mut b, p.evals.len() as u32);
-            for e in &p.evals {
-                for v in [e.success_rate, e.mean_return, e.train_return] {
-                    put_u64(&mut b, v.to_bits());
-                }
-                put_u32(&mut b, e.worker);
-            }
-        }
-        Message::Params(p) => {
-            put_u64(&mut b, p.updates);
-            put_u64(&mut b, p.transitions);
-            put_u32(&mut b, p.nets.len() as u32);
-            for n in &p.nets {
-                put_f32s(&mut b, &n.params);
-                put_f32s(&mut b, &n.target);
-                put_f32s(&mut b, &n.v);
-                put_u64(&mut b, n.t);
-            }
-        }
-        Message::Stop => {}
-    }
-    let body = (b.len() - HEADER) as u64;
-    b[HEADER - 8..HEADER].copy_from_slice(&body.to_le_bytes());
+    let body = match msg {
+        Message::Push(p) => postcard::to_extend(p, b),
+        Message::Params(p) => postcard::to_extend(p, b),
+        Message::Stop => Ok(b),
+    };
+    let mut b = body.map_err(|_| bad("the body does not encode"))?;
+    let len = (b.len() - HEADER) as u64;
+    b[HEADER - 8..HEADER].copy_from_slice(&len.to_le_bytes());
     let sum = dex_policy::CRC32.checksum(&b);
-    put_u32(&mut b, sum);
-    b
+    b.extend_from_slice(&sum.to_le_bytes());
+    Ok(b)
 }
 
 /// Decodes a message from `bytes`, checking it against the networks' parameter counts
 /// (`net_sizes`: actor, critic, and the twin critic when the run has one). Returns the sending
 /// rank and the message.
 pub fn decode(bytes: &[u8], net_sizes: &[usize]) -> Result<(u32, Message), DistributedError> {
-    let bad = |why: &'static str| DistributedError::BadMessage { why };
     if bytes.len() < HEADER + SUM {
         return Err(bad("shorter than a header"));
     }
     if &bytes[..4] != MAGIC {
         return Err(bad("wrong magic"));
     }
-    let mut d = Dec { b: &bytes[4..] };
-    match d.u16()? {
+    match u16::from_le_bytes([bytes[4], bytes[5]]) {
         VERSION => {}
         v if v < VERSION => return Err(bad("older wire version (a rank of an older build)")),
         _ => return Err(bad("wrong wire version")),
     }
-    let kind = d.u8()?;
-    let _zero = d.u8()?;
-    let rank = d.u32()?;
-    let body = d.u64()?;
-    if body != (bytes.len() - HEADER - SUM) as u64 {
+    let kind = bytes[6];
+    let rank = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+    let mut len = [0u8; 8];
+    len.copy_from_slice(&bytes[12..HEADER]);
+    if u64::from_le_bytes(len) != (bytes.len() - HEADER - SUM) as u64 {
         return Err(bad("length does not match the header"));
     }
     let (payload, sum) = bytes.split_at(bytes.len() - SUM);
     if u32::from_le_bytes([sum[0], sum[1], sum[2], sum[3]]) != dex_policy::CRC32.checksum(payload) {
         return Err(bad("checksum mismatch"));
     }
-    let mut d = Dec {
-        b: &payload[HEADER..],
-    };
+    let body = &payload[HEADER..];
     let msg = match kind {
         KIND_PUSH => {
-            let transitions = d.u64()?;
-            let episodes = d.u64()?;
-            let updates = d.u64()?;
-            let return_sum = f64::from_bits(d.u64()?);
-            let return_n = d.u64()?;
-            if !return_sum.is_finite() {
+            let p: Push = body_of(body)?;
+            if !p.return_sum.is_finite() {
                 return Err(bad("non-finite return"));
             }
-            let n = d.u32()? as usize;
-            if n != net_sizes.len() {
-                return Err(bad("wrong number of networks"));
-            }
-            let mut nets = Vec::with_capacity(n);
-            for &size in net_sizes {
-                let steps = d.u64()?;
-                let delta = d.f32s(size)?;
-                let dv = d.f32s(size)?;
-                nets.push(NetDelta { steps, delta, dv });
-            }
-            let ne = d.u32()? as usize;
-            if ne > d.b.len() / 28 {
-                return Err(bad("evaluation count beyond the message"));
-            }
-            let mut evals = Vec::with_capacity(ne);
-            for _ in 0..ne {
-                let e = RemoteEval {
-                    success_rate: f64::from_bits(d.u64()?),
-                    mean_return: f64::from_bits(d.u64()?),
-                    train_return: f64::from_bits(d.u64()?),
-                    worker: d.u32()?,
-                };
-                if !(e.success_rate.is_finite()
+            check_nets(net_sizes, p.nets.iter().map(|n| [&n.delta[..], &n.dv[..]]))?;
+            if p.evals.iter().any(|e| {
+                !(e.success_rate.is_finite()
                     && e.mean_return.is_finite()
                     && e.train_return.is_finite())
-                {
-                    return Err(bad("non-finite evaluation"));
-                }
-                evals.push(e);
+            }) {
+                return Err(bad("non-finite evaluation"));
             }
-            Message::Push(Push {
-                transitions,
-                episodes,
-                updates,
-                return_sum,
-                return_n,
-                nets,
-                evals,
-            })
+            Message::Push(p)
         }
         KIND_PARAMS => {
-            let updates = d.u64()?;
-            let transitions = d.u64()?;
-            let n = d.u32()? as usize;
-            if n != net_sizes.len() {
-                return Err(bad("wrong number of networks"));
-            }
-            let mut nets = Vec::with_capacity(n);
-            for &size in net_sizes {
-                nets.push(NetParams {
-                    params: d.f32s(size)?,
-                    target: d.f32s(size)?,
-                    v: d.f32s(size)?,
-                    t: d.u64()?,
-                });
-            }
-            Message::Params(Params {
-                updates,
-                transitions,
-                nets,
-            })
+            let p: Params = body_of(body)?;
+            check_nets(
+                net_sizes,
+                p.nets
+                    .iter()
+                    .map(|n| [&n.params[..], &n.target[..], &n.v[..]]),
+            )?;
+            Message::Params(p)
         }
-        KIND_STOP => Message::Stop,
+        KIND_STOP if body.is_empty() => Message::Stop,
+        KIND_STOP => return Err(bad("bytes after the body")),
         _ => return Err(bad("unknown kind")),
     };
-    if !d.b.is_empty() {
-        return Err(bad("bytes after the body"));
-    }
     Ok((rank, msg))
 }
 
-fn put_u32(b: &mut Vec<u8>, v: u32) {
-    b.extend_from_slice(&v.to_le_bytes());
-}
-
-fn put_u64(b: &mut Vec<u8>, v: u64) {
-    b.extend_from_slice(&v.to_le_bytes());
-}
-
-fn put_f32s(b: &mut Vec<u8>, v: &[f32]) {
-    put_u32(b, v.len() as u32);
-    b.reserve(v.len() * 4);
-    for x in v {
-        b.extend_from_slice(&x.to_le_bytes());
+/// The body as `T`, all of it.
+fn body_of<'a, T: Deserialize<'a>>(body: &'a [u8]) -> Result<T, DistributedError> {
+    match postcard::take_from_bytes::<T>(body) {
+        Ok((value, [])) => Ok(value),
+        Ok(_) => Err(bad("bytes after the body")),
+        Err(postcard::Error::DeserializeUnexpectedEnd) => Err(bad("ends inside the body")),
+        Err(_) => Err(bad("the body does not decode")),
     }
 }
 
-struct Dec<'a> {
-    b: &'a [u8],
-}
-
-const SHORT: DistributedError = DistributedError::BadMessage {
-    why: "ends inside the body",
-};
-
-impl Dec<'_> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N], DistributedError> {
-        if self.b.len() < N {
-            return Err(SHORT);
+/// Every network's arrays hold exactly its parameter count of finite values.
+fn check_nets<'a, const K: usize>(
+    net_sizes: &[usize],
+    nets: impl ExactSizeIterator<Item = [&'a [f32]; K]>,
+) -> Result<(), DistributedError> {
+    if nets.len() != net_sizes.len() {
+        return Err(bad("wrong number of networks"));
+    }
+    for (arrays, &size) in nets.zip(net_sizes) {
+        for a in arrays {
+            if a.len() != size {
+                return Err(bad("array size does not match the network"));
+            }
+            if a.iter().any(|x| !x.is_finite()) {
+                return Err(bad("non-finite value"));
+            }
         }
-        let (h, t) = self.b.split_at(N);
-        self.b = t;
-        let mut a = [0u8; N];
-        a.copy_from_slice(h);
-        Ok(a)
     }
-    fn u8(&mut self) -> Result<u8, DistributedError> {
-        Ok(self.take::<1>()?[0])
-    }
-    fn u16(&mut self) -> Result<u16, DistributedError> {
-        Ok(u16::from_le_bytes(self.take()?))
-    }
-    fn u32(&mut self) -> Result<u32, DistributedError> {
-        Ok(u32::from_le_bytes(self.take()?))
-    }
-    fn u64(&mut self) -> Result<u64, DistributedError> {
-        Ok(u64::from_le_bytes(self.take()?))
-    }
-    /// An array that must hold exactly `want` finite values.
-    fn f32s(&mut self, want: usize) -> Result<Vec<f32>, DistributedError> {
-        let n = self.u32()? as usize;
-        if n != want {
-            return Err(DistributedError::BadMessage {
-                why: "array size does not match the network",
-            });
-        }
-        let bytes = n.checked_mul(4).ok_or(SHORT)?;
-        if self.b.len() < bytes {
-            return Err(SHORT);
-        }
-        let (h, t) = self.b.split_at(bytes);
-        self.b = t;
-        let v: Vec<f32> = h
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        if v.iter().any(|x| !x.is_finite()) {
-            return Err(DistributedError::BadMessage {
-                why: "non-finite value",
-            });
-        }
-        Ok(v)
-    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -420,16 +298,16 @@ mod tests {
     #[test]
     fn every_kind_round_trips() {
         for m in [push(), params(), Message::Stop] {
-            let b = encode(7, &m);
+            let b = encode(7, &m).unwrap();
             assert_eq!(decode(&b, &SIZES).ok(), Some((7, m)));
         }
     }
 
     #[test]
     fn header_layout_is_pinned() {
-        let b = encode(2, &Message::Stop);
+        let b = encode(2, &Message::Stop).unwrap();
         assert_eq!(&b[..4], b"DXMP");
-        assert_eq!(&b[4..8], &[2, 0, 3, 0]);
+        assert_eq!(&b[4..8], &[3, 0, 3, 0]);
         assert_eq!(&b[8..12], &[2, 0, 0, 0]);
         assert_eq!(&b[12..20], &[0; 8]);
         assert_eq!(b.len(), HEADER + SUM);
@@ -444,10 +322,10 @@ mod tests {
 
     #[test]
     fn wrong_version_is_refused() {
-        let mut b = encode(1, &push());
-        b[4] = 3;
+        let mut b = encode(1, &push()).unwrap();
+        b[4] = 4;
         assert_eq!(refused(&reseal(b.clone())), "wrong wire version");
-        b[4] = 1;
+        b[4] = 2;
         assert_eq!(
             refused(&reseal(b)),
             "older wire version (a rank of an older build)"
@@ -456,7 +334,7 @@ mod tests {
 
     #[test]
     fn wrong_length_is_refused() {
-        let b = encode(1, &push());
+        let b = encode(1, &push()).unwrap();
         // Cut short, one byte more, and an empty buffer.
         assert_eq!(
             refused(&b[..b.len() - 1]),
@@ -476,7 +354,7 @@ mod tests {
 
     #[test]
     fn wrong_sizes_and_kinds_are_refused() {
-        let b = encode(1, &push());
+        let b = encode(1, &push()).unwrap();
         assert!(matches!(
             decode(&b, &[3, 3]),
             Err(DistributedError::BadMessage {
@@ -498,8 +376,21 @@ mod tests {
     }
 
     #[test]
+    fn a_body_with_bytes_after_it_is_refused() {
+        for m in [push(), params(), Message::Stop] {
+            let mut b = encode(1, &m).unwrap();
+            b.truncate(b.len() - SUM);
+            b.push(0);
+            let body = (b.len() - HEADER) as u64;
+            b[HEADER - 8..HEADER].copy_from_slice(&body.to_le_bytes());
+            b.extend_from_slice(&[0; SUM]);
+            assert_eq!(refused(&reseal(b)), "bytes after the body");
+        }
+    }
+
+    #[test]
     fn flipped_bit_fails_the_checksum() {
-        let mut b = encode(1, &params());
+        let mut b = encode(1, &params()).unwrap();
         let i = b.len() / 2;
         b[i] ^= 0x10;
         assert_eq!(refused(&b), "checksum mismatch");
@@ -513,19 +404,22 @@ mod tests {
             };
             p.nets[1].delta[0] = bad;
             assert_eq!(
-                refused(&encode(1, &Message::Push(p.clone()))),
+                refused(&encode(1, &Message::Push(p.clone())).unwrap()),
                 "non-finite value"
             );
             p.nets[1].delta[0] = 0.0;
             p.nets[0].dv[2] = bad;
-            assert_eq!(refused(&encode(1, &Message::Push(p))), "non-finite value");
+            assert_eq!(
+                refused(&encode(1, &Message::Push(p)).unwrap()),
+                "non-finite value"
+            );
         }
         let Message::Push(mut p) = push() else {
             unreachable!()
         };
         p.evals[0].success_rate = f64::NAN;
         assert_eq!(
-            refused(&encode(1, &Message::Push(p))),
+            refused(&encode(1, &Message::Push(p)).unwrap()),
             "non-finite evaluation"
         );
     }

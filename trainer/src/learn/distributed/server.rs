@@ -226,7 +226,7 @@ impl<'t, T: Transport> Server<'t, T> {
     /// Tells every worker rank to stop (lost ones too: a stopped or cut-off rank that comes back
     /// takes it and ends) and waits (up to the rank timeout) until the ranks present took it.
     pub fn finish(&mut self) -> Result<(), LearnError> {
-        let bytes = message::encode(0, &Message::Stop);
+        let bytes = message::encode(0, &Message::Stop)?;
         for r in 1..self.transport.size() {
             self.transport.send(r, bytes.clone())?;
         }
@@ -301,7 +301,7 @@ impl<'t, T: Transport> Server<'t, T> {
             transitions: trainer.progress().transitions,
             nets,
         });
-        let bytes = message::encode(0, &msg);
+        let bytes = message::encode(0, &msg)?;
         self.stats.bytes_sent += bytes.len() as u64;
         self.transport.send(to, bytes)?;
         Ok(())

@@ -264,7 +264,7 @@ impl<'t, T: Transport> WorkerRank<'t, T> {
         };
         self.pushed = (p.transitions, p.episodes);
         self.updates_at_push = updates_now;
-        let bytes = message::encode(self.transport.rank() as u32, &Message::Push(push));
+        let bytes = message::encode(self.transport.rank() as u32, &Message::Push(push))?;
         self.stats.bytes_sent += bytes.len() as u64;
         self.transport.send(0, bytes)?;
         self.stats.exchanges += 1;
