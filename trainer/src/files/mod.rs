@@ -8,6 +8,8 @@
 //!   (calibrate, equalise, quantise, measure).
 //! - [`policy_import`]: a policy file back into the learner's actor (the start of RL fine-tuning).
 //! - [`result_record`]: an evaluation as a `docs/results/` record.
+//! - [`soup`]: a weight-space average of policy files of one network (seeds of a fine-tune, and
+//!   the clone they started from).
 
 pub mod atomic_write;
 pub mod demos;
@@ -15,3 +17,4 @@ pub mod export;
 pub mod int8_export;
 pub mod policy_import;
 pub mod result_record;
+pub mod soup;

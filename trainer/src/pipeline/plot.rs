@@ -77,6 +77,59 @@ pub struct Condition {
     pub seeds: Vec<Vec<EvalRecord>>,
 }
 
+/// A published figure drawn over the curves (dashed, black or grey): a success level (a horizontal line on
+/// the success plots), a budget in transitions (a vertical line on the plots against transitions),
+/// or both (their crossing, e.g. "95.5% within 1M transitions").
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Mark {
+    /// Legend label, e.g. "paper: 95.5% (Table II)".
+    pub label: String,
+    /// Success rate in [0, 1], drawn on the success plots.
+    #[serde(default)]
+    pub success: Option<f64>,
+    /// Transitions (all workers), drawn on the plots against transitions.
+    #[serde(default)]
+    pub transitions: Option<u64>,
+}
+
+impl Mark {
+    /// Refuses a mark that draws nothing or lies off its axes.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.success.is_none() && self.transitions.is_none() {
+            return Err(format!(
+                "mark `{}` sets neither success nor transitions",
+                self.label
+            ));
+        }
+        if let Some(s) = self.success
+            && !(0.0..=1.0).contains(&s)
+        {
+            return Err(format!(
+                "mark `{}`: success {s} is not in [0, 1]",
+                self.label
+            ));
+        }
+        Ok(())
+    }
+
+    /// The vertical line's position on axis `x`, when the mark has one there.
+    fn x_on(&self, x: XAxis) -> Option<f64> {
+        match x {
+            XAxis::Total => self.transitions.map(|t| t as f64 / 1e6),
+            XAxis::PerWorker | XAxis::WallClock => None,
+        }
+    }
+
+    /// The horizontal line's level on a plot of `metric`, when the mark has one there.
+    fn y_on(&self, metric: Metric) -> Option<f64> {
+        match metric {
+            Metric::SuccessRate => self.success,
+            Metric::MeanReturn | Metric::TrainReturn => None,
+        }
+    }
+}
+
 /// Mean, min and max over seeds at each evaluation index that every seed reached.
 pub fn aggregate(seeds: &[Vec<EvalRecord>], metric: Metric, x: XAxis) -> Vec<(f64, f64, f64, f64)> {
     let n = seeds.iter().map(Vec::len).min().unwrap_or(0);
@@ -103,6 +156,7 @@ fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
     conditions: &[Condition],
+    marks: &[Mark],
     metric: Metric,
     x: XAxis,
 ) -> Result<(), String>
@@ -114,7 +168,12 @@ where
         .iter()
         .map(|c| aggregate(&c.seeds, metric, x))
         .collect();
-    let x_max = series.iter().flatten().map(|p| p.0).fold(1e-6, f64::max);
+    let x_max = series
+        .iter()
+        .flatten()
+        .map(|p| p.0)
+        .chain(marks.iter().filter_map(|m| m.x_on(x)))
+        .fold(1e-6, f64::max);
     let (y_min, y_max) = series
         .iter()
         .flatten()
@@ -175,6 +234,26 @@ where
                 PathElement::new(vec![(lx, ly), (lx + 18, ly)], colour.stroke_width(2))
             });
     }
+    // Marks in black and dark greys, apart from the curves' palette colours.
+    const MARK_COLOURS: [RGBColor; 3] = [BLACK, RGBColor(120, 120, 120), RGBColor(40, 40, 140)];
+    for (k, m) in marks.iter().enumerate() {
+        let colour = MARK_COLOURS[k % MARK_COLOURS.len()];
+        let (mx, my) = (m.x_on(x), m.y_on(metric));
+        // The crossing of a level and a budget is drawn as a corner: up to the level, then left.
+        let points = match (mx, my) {
+            (Some(vx), Some(vy)) => vec![(vx, y_min), (vx, vy), (0.0, vy)],
+            (Some(vx), None) => vec![(vx, y_min), (vx, y_max * 1.05)],
+            (None, Some(vy)) => vec![(0.0, vy), (x_max * 1.02, vy)],
+            (None, None) => continue,
+        };
+        chart
+            .draw_series(DashedLineSeries::new(points, 8, 5, colour.stroke_width(2)))
+            .map_err(|e| e.to_string())?
+            .label(m.label.clone())
+            .legend(move |(lx, ly)| {
+                PathElement::new(vec![(lx, ly), (lx + 18, ly)], colour.stroke_width(2))
+            });
+    }
     chart
         .configure_series_labels()
         .background_style(WHITE.mix(0.8))
@@ -201,6 +280,7 @@ pub fn plot(
     stem: &Path,
     title: &str,
     conditions: &[Condition],
+    marks: &[Mark],
     metric: Metric,
     x: XAxis,
 ) -> Result<[PathBuf; 2], PlotError> {
@@ -219,6 +299,7 @@ pub fn plot(
         BitMapBackend::new(&png, (1000, 600)).into_drawing_area(),
         title,
         conditions,
+        marks,
         metric,
         x,
     )
@@ -230,6 +311,7 @@ pub fn plot(
         SVGBackend::new(&svg, (1000, 600)).into_drawing_area(),
         title,
         conditions,
+        marks,
         metric,
         x,
     )

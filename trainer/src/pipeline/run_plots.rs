@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::learn::EvalRecord;
-use crate::pipeline::plot::{Condition, Metric, PlotError, XAxis, plot, read_eval_log};
+use crate::pipeline::plot::{Condition, Mark, Metric, PlotError, XAxis, plot, read_eval_log};
 use crate::pipeline::train_settings::TrainSettings;
 
 /// Why a run folder could not be read or plotted.
@@ -87,12 +87,14 @@ pub fn read_run(
 }
 
 /// Return and success plots (PNG + SVG) of `conditions` as `dir`/`prefix`return.* and
-/// `dir`/`prefix`success.* (and `..._per_worker` too when `per_worker`).
+/// `dir`/`prefix`success.* (and `..._per_worker` too when `per_worker`), with `marks` (published
+/// figures) drawn where their axes are.
 pub fn plot_conditions(
     dir: &Path,
     prefix: &str,
     title: &str,
     conditions: &[Condition],
+    marks: &[Mark],
     per_worker: bool,
 ) -> Result<Vec<PathBuf>, PlotError> {
     let mut files = Vec::new();
@@ -113,6 +115,7 @@ pub fn plot_conditions(
             &name_of(name),
             &titled(format!("{name} against transitions")),
             conditions,
+            marks,
             metric,
             XAxis::Total,
         )?);
@@ -122,6 +125,7 @@ pub fn plot_conditions(
                 &name_of(&format!("{name}_wall")),
                 &titled(format!("{name} against wall-clock")),
                 conditions,
+                marks,
                 metric,
                 XAxis::WallClock,
             )?);
@@ -131,6 +135,7 @@ pub fn plot_conditions(
                 &name_of(&format!("{name}_per_worker")),
                 &titled(format!("{name} against transitions per worker")),
                 conditions,
+                marks,
                 metric,
                 XAxis::PerWorker,
             )?);
@@ -157,5 +162,5 @@ pub fn plot_run(
         None => (run.display().to_string(), 1),
     };
     let conditions = [Condition { label, seeds }];
-    Ok(plot_conditions(run, "", "", &conditions, workers > 1)?)
+    Ok(plot_conditions(run, "", "", &conditions, &[], workers > 1)?)
 }

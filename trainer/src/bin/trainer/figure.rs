@@ -9,6 +9,10 @@
 //! [[runs]]
 //! label = "sparse"
 //! config = "experiments/stack-sparse-original.toml"
+//! [[marks]]                                     # optional: the paper's figures, dashed
+//! label = "paper: 95.5% (Table II)"
+//! success = 0.955                               # a level on the success plots
+//! transitions = 1000000                         # a budget on the plots against transitions
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -16,7 +20,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::Deserialize;
 
-use dex_trainer::pipeline::plot::Condition;
+use dex_trainer::pipeline::plot::{Condition, Mark};
 use dex_trainer::pipeline::run_plots::{plot_conditions, read_run};
 use dex_trainer::pipeline::train_settings::{self, TrainSettings};
 
@@ -43,6 +47,9 @@ pub struct Figure {
     pub out: PathBuf,
     /// The curves.
     pub runs: Vec<FigureRun>,
+    /// Published figures drawn over the curves (the paper's success, its budget).
+    #[serde(default)]
+    pub marks: Vec<Mark>,
 }
 
 /// Reads and checks a figure file: every run's config must load and validate; returns the figure
@@ -57,6 +64,10 @@ pub fn load(path: &Path) -> anyhow::Result<(Figure, Vec<TrainSettings>)> {
             "{}: a figure needs at least one [[runs]] entry",
             path.display()
         );
+    }
+    for m in &fig.marks {
+        m.validate()
+            .map_err(|why| anyhow::anyhow!("{}: {why}", path.display()))?;
     }
     let settings = fig
         .runs
@@ -122,6 +133,7 @@ pub fn figure(path: &Path, overrides: &TrainArgs, plot_only: bool) -> anyhow::Re
         &format!("{stem}_"),
         &fig.title,
         &conditions,
+        &fig.marks,
         per_worker,
     )? {
         println!("wrote {}", f.display());
@@ -214,7 +226,11 @@ mod tests {
         let fig = tmp.join("fig.toml");
         std::fs::write(
             &fig,
-            format!("title = \"t\"\nout = \"{}\"\n{runs}", stem.display()),
+            format!(
+                "title = \"t\"\nout = \"{}\"\n{runs}[[marks]]\nlabel = \"paper-mark\"\n\
+                 success = 0.955\ntransitions = 1000000\n",
+                stem.display()
+            ),
         )
         .unwrap();
         figure(&fig, &TrainArgs::default(), true).unwrap();
@@ -236,6 +252,21 @@ mod tests {
             svg.contains("alpha-run") && svg.contains("beta-run"),
             "legend labels"
         );
+        // The paper's mark: its budget on the plots against transitions (whose axis then reaches
+        // 1M), its level on the success plots, nothing on the return against wall-clock.
+        let read = |f: &str| std::fs::read_to_string(tmp.join("figs").join(f)).unwrap();
+        assert!(read("fig_success.svg").contains("paper-mark") && svg.contains("1.000"));
+        assert!(svg.contains("paper-mark") && read("fig_success_wall.svg").contains("paper-mark"));
+        assert!(!read("fig_return_wall.svg").contains("paper-mark"));
+        // A mark that draws nothing, or a success off the axis, is refused.
+        for bad in ["", "success = 1.5\n"] {
+            std::fs::write(
+                &fig,
+                format!("title = \"t\"\nout = \"x\"\n{runs}[[marks]]\nlabel = \"m\"\n{bad}"),
+            )
+            .unwrap();
+            assert!(format!("{:#}", load(&fig).unwrap_err()).contains("mark `m`"));
+        }
         // A figure without runs, or naming a broken config, is refused with the culprit named.
         std::fs::write(&fig, "title = \"t\"\nout = \"x\"\nruns = []\n").unwrap();
         assert!(format!("{:#}", load(&fig).unwrap_err()).contains("at least one"));

@@ -10,6 +10,7 @@
 //! trainer demos --task grasp [--episodes 200] [--arm-noise 0.2] --out FILE.dxdm
 //! trainer clone --demos FILE.dxdm[,...] --out POLICY.dxpl [--steps 20000]
 //! trainer imitate --task grasp [--rounds 4] [--seeds 0,1,2] [--out runs/imitate]
+//! trainer soup OUT.dxpl FILE.dxpl... [--weights 0.5,0.25,0.25]
 //! ```
 
 mod compare;
@@ -18,6 +19,7 @@ mod distributed;
 mod eval_flags;
 mod figure;
 mod imitate;
+mod soup;
 mod train;
 
 use std::path::PathBuf;
@@ -64,6 +66,8 @@ pub(crate) enum Command {
     Clone(demos::CloneArgs),
     /// Imitation learner: clone the Markov demonstrator, then DAgger rounds; exports the best round.
     Imitate(imitate::ImitateArgs),
+    /// Weight-space average of policy files of one network (seeds of a fine-tune, their clone).
+    Soup(soup::SoupArgs),
     /// The toy point-mass task across MPI ranks (a check of the distributed learner; under mpirun).
     #[command(hide = true)]
     DistributedPointMass(distributed::PointMassArgs),
@@ -382,6 +386,7 @@ fn main() -> anyhow::Result<()> {
         Command::Demos(args) => demos::demos(&args),
         Command::Clone(args) => demos::clone(&args),
         Command::Imitate(args) => imitate::imitate(&args),
+        Command::Soup(args) => soup::soup_files(&args),
         Command::Plot { run } => {
             let files = train::plot_run(&run)?;
             for f in files {
