@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
 use dex_hil_sim::client::{BusClient, ClientError, Received};
 use dex_hil_sim::slcan_bridge::{
-    Bridge, BridgeConfig, BridgeError, PROBE_INTERVAL, run_bridge, stamp_ms,
+    Bridge, BridgeConfig, BridgeError, BridgeStats, PROBE_INTERVAL, run_bridge, stamp_ms,
 };
 use dex_runtime::can::CanFrame;
 
@@ -22,6 +22,50 @@ fn config(bus: &Bus, serial: std::net::SocketAddr) -> BridgeConfig {
         serial,
         stamp: true,
         ready_timeout: Duration::from_secs(5),
+    }
+}
+
+/// A virtual-clock bus, a stand-in device (the TCP server QEMU's serial socket would be) and the
+/// bridge between them on its own thread, with the device's end of the serial line accepted.
+struct Rig {
+    bus: Bus,
+    stop: Arc<AtomicBool>,
+    bridge: std::thread::JoinHandle<Result<BridgeStats, BridgeError>>,
+    dev: TcpStream,
+}
+
+impl Rig {
+    /// `before_bridge` runs on the bus before the bridge joins it (e.g. to set its time).
+    fn start(before_bridge: impl FnOnce(&Bus)) -> Rig {
+        let bus = Bus::start(BusConfig {
+            clock: BusClock::Virtual,
+            ..BusConfig::default()
+        })
+        .unwrap();
+        before_bridge(&bus);
+        let device = TcpListener::bind("127.0.0.1:0").unwrap();
+        let serial = device.local_addr().unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let bridge = {
+            let stop = Arc::clone(&stop);
+            let cfg = config(&bus, serial);
+            std::thread::spawn(move || run_bridge(cfg, &stop))
+        };
+        let (dev, _) = device.accept().unwrap();
+        Rig {
+            bus,
+            stop,
+            bridge,
+            dev,
+        }
+    }
+
+    /// Stops the bridge and the bus; the bridge's counts.
+    fn finish(self) -> BridgeStats {
+        self.stop.store(true, Ordering::SeqCst);
+        let stats = self.bridge.join().unwrap().unwrap();
+        self.bus.shutdown();
+        stats
     }
 }
 
@@ -67,25 +111,13 @@ fn stamps_follow_bus_time_and_wrap() {
 
 #[test]
 fn bridge_carries_frames_both_ways() {
-    let bus = Bus::start(BusConfig {
-        clock: BusClock::Virtual,
-        ..BusConfig::default()
-    })
-    .unwrap();
-    bus.set_time(61_234_000); // 61.234 s: stamps wrap at 60 s
-    let device = TcpListener::bind("127.0.0.1:0").unwrap();
-    let serial = device.local_addr().unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let bridge = {
-        let stop = Arc::clone(&stop);
-        let cfg = config(&bus, serial);
-        std::thread::spawn(move || run_bridge(cfg, &stop))
-    };
-    let (dev, _) = device.accept().unwrap();
-    dev.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    let mut dev_in = BufReader::new(dev.try_clone().unwrap());
-    let mut dev_out = dev;
-    let mut other = BusClient::connect(bus.addr(), "vcan0").unwrap();
+    let rig = Rig::start(|bus| bus.set_time(61_234_000)); // 61.234 s: stamps wrap at 60 s
+    rig.dev
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let mut dev_in = BufReader::new(rig.dev.try_clone().unwrap());
+    let mut dev_out = rig.dev.try_clone().unwrap();
+    let mut other = BusClient::connect(rig.bus.addr(), "vcan0").unwrap();
 
     // Bus -> device, with the bus time as the stamp (61,234 ms modulo 60,000 = 0x04D2).
     other.queue(&CanFrame::standard(0x190, &[1, 2, 3]).unwrap());
@@ -96,19 +128,17 @@ fn bridge_carries_frames_both_ways() {
     // Device -> bus: garbage, an answer and a BEL are not frames; the frame line is.
     dev_out.write_all(b"V0101\r\x07\rjunk\rt710105\r").unwrap();
     let Some(got) = next_frame(&mut other).unwrap() else {
-        stop.store(true, Ordering::SeqCst);
-        panic!("no frame from the device: {:?}", bridge.join());
+        rig.stop.store(true, Ordering::SeqCst);
+        panic!("no frame from the device: {:?}", rig.bridge.join());
     };
     assert_eq!(got, CanFrame::standard(0x710, &[0x05]).unwrap());
 
-    stop.store(true, Ordering::SeqCst);
-    let stats = bridge.join().unwrap().unwrap();
+    let stats = rig.finish();
     assert!(stats.probes >= 1);
     assert_eq!(stats.to_device, 1);
     assert_eq!(stats.to_bus, 1);
     // The version answers to the handshake, then V0101, the BEL and the garbage line.
     assert_eq!(stats.other_lines, answered + 3);
-    bus.shutdown();
 }
 
 /// A device whose receiver is not enabled yet at first (a UART before its firmware set it up:
@@ -117,22 +147,10 @@ fn bridge_carries_frames_both_ways() {
 /// writes the bus frame that was sent meanwhile: it arrives whole.
 #[test]
 fn frames_wait_for_a_device_that_is_not_listening_yet() {
-    let bus = Bus::start(BusConfig {
-        clock: BusClock::Virtual,
-        ..BusConfig::default()
-    })
-    .unwrap();
-    let device = TcpListener::bind("127.0.0.1:0").unwrap();
-    let serial = device.local_addr().unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let bridge = {
-        let stop = Arc::clone(&stop);
-        let cfg = config(&bus, serial);
-        std::thread::spawn(move || run_bridge(cfg, &stop))
-    };
-    let (mut dev, _) = device.accept().unwrap();
+    let rig = Rig::start(|_| {});
+    let mut dev = rig.dev.try_clone().unwrap();
     // The bridge joins the bus before it connects the serial line: this frame is its to carry.
-    let mut other = BusClient::connect(bus.addr(), "vcan0").unwrap();
+    let mut other = BusClient::connect(rig.bus.addr(), "vcan0").unwrap();
     other.queue(&CanFrame::standard(0x610, &[0xC6, 0x50, 0x1F, 0x01]).unwrap());
     other.flush().unwrap();
 
@@ -171,12 +189,10 @@ fn frames_wait_for_a_device_that_is_not_listening_yet() {
         Some(CanFrame::standard(0x710, &[0x00]).unwrap())
     );
 
-    stop.store(true, Ordering::SeqCst);
-    let stats = bridge.join().unwrap().unwrap();
+    let stats = rig.finish();
     assert!(stats.probes >= 4, "{stats:?}");
     assert_eq!(stats.to_device, 1);
     assert_eq!(stats.to_bus, 1);
-    bus.shutdown();
 }
 
 /// A device that never answers the version request: the bridge gives up after its timeout.
