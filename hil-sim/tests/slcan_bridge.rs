@@ -2,6 +2,7 @@
 //! The bridge forwards bus frames only after the device has answered its version request (the
 //! start-up handshake); bus frames reach the device as SLCAN lines stamped with their bus time;
 //! the device's frame lines reach the bus; its other answers (lines, BEL, garbage) do not.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
