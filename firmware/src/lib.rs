@@ -362,9 +362,6 @@ fn replay_controller(
 /// The A/B slot phase (feature `slots`).
 #[cfg(feature = "slots")]
 pub mod slots {
-    use core::cell::UnsafeCell;
-    use core::sync::atomic::{AtomicBool, Ordering};
-
     use dex_runtime::can::messages::{NmtCommand, OBS_FRAMES, encode_observation, nmt_frame};
     use dex_runtime::can::{CanFrame, E2eSender};
     use dex_runtime::canopen::program::{PROGRAM_CONTROL, control};
@@ -373,6 +370,7 @@ pub mod slots {
     use dex_runtime::interface::ACT_DIM;
     use dex_runtime::slots::SLOT_HEADER_BYTES;
     use dex_runtime::{Controller, ControllerConfig, MockClock, Network, PolicySlots, State};
+    use dex_slot_mirror::SlotRegions;
     use embedded_can::Frame;
 
     use super::{
@@ -387,30 +385,12 @@ pub mod slots {
     /// Bytes of one slot region: header and 32 KiB of policy file.
     pub const REGION: usize = SLOT_HEADER_BYTES + 32 * 1024;
 
-    /// One region, 8-byte aligned.
-    #[repr(C, align(8))]
-    struct Region(UnsafeCell<[u8; REGION]>);
-
     /// The two static regions standing for two flash sectors (in `.bss`: erased at boot).
-    struct Regions([Region; 2]);
-
-    // SAFETY: the regions are only reached through `take`, which hands them out once.
-    unsafe impl Sync for Regions {}
-
-    static REGIONS: Regions = Regions([
-        Region(UnsafeCell::new([0; REGION])),
-        Region(UnsafeCell::new([0; REGION])),
-    ]);
-    static TAKEN: AtomicBool = AtomicBool::new(false);
+    static REGIONS: SlotRegions<REGION> = SlotRegions::new();
 
     /// Both regions, once per run.
     fn take() -> Option<(&'static mut [u8], &'static mut [u8])> {
-        if TAKEN.swap(true, Ordering::AcqRel) {
-            return None;
-        }
-        let [a, b] = &REGIONS.0;
-        // SAFETY: `TAKEN` lets this run once, so these are the only references to the regions.
-        Some(unsafe { (&mut *a.0.get(), &mut *b.0.get()) })
+        REGIONS.take()
     }
 
     /// Recorded frame `k`: (direction, frame).

@@ -15,6 +15,9 @@
 
 use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
 
+pub mod regions;
+pub use regions::SlotRegions;
+
 /// Bytes compared per step of [`SlotMirror::sync`].
 const CHUNK: usize = 256;
 
