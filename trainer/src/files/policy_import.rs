@@ -147,6 +147,30 @@ pub fn normalised_actor_from_policy(
     read(file, task, actor, false)
 }
 
+/// A first layer (`w` input-major, `outputs` wide, biases `b`) with the input normalisation
+/// `(x - mean) / scale` folded in, in f64: `w'[i][j] = w[i][j] / scale[i]`, `b'[j] = b[j] - sum_i
+/// w[i][j] mean[i] / scale[i]`, so that it takes raw inputs. The callers round (and check) once.
+pub(crate) fn fold_normalisation(
+    w: &[f32],
+    b: &[f32],
+    mean: &[f32],
+    scale: &[f32],
+    outputs: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut weights = Vec::with_capacity(w.len());
+    let mut bias: Vec<f64> = b.iter().map(|&x| f64::from(x)).collect();
+    for (i, (&m, &sc)) in mean.iter().zip(scale).enumerate() {
+        let inv = 1.0 / f64::from(sc);
+        let shift = f64::from(m) * inv;
+        for (j, bj) in bias.iter_mut().enumerate() {
+            let wij = f64::from(w[i * outputs + j]);
+            weights.push(wij * inv);
+            *bj -= wij * shift;
+        }
+    }
+    (weights, bias)
+}
+
 fn read(file: &[u8], task: Task, actor: &Mlp, fold: bool) -> Result<NormalisedActor, ImportError> {
     let aligned = dex_runtime::aligned::aligned_copy(file);
     let view = PolicyView::decode(aligned.as_bytes())?;
@@ -227,19 +251,15 @@ fn read(file: &[u8], task: Task, actor: &Mlp, fold: bool) -> Result<NormalisedAc
             params.extend_from_slice(b);
             continue;
         }
-        let mut bias: Vec<f64> = b.iter().map(|&x| f64::from(x)).collect();
-        for i in 0..l.inputs {
-            let inv = 1.0 / f64::from(scale[i]);
-            let shift = f64::from(mean[i]) * inv;
-            for (j, bj) in bias.iter_mut().enumerate() {
-                let wij = f64::from(w[i * l.outputs + j]);
-                let folded = (wij * inv) as f32;
-                if !folded.is_finite() {
-                    return Err(ImportError::NotFinite { input: i });
-                }
-                params.push(folded);
-                *bj -= wij * shift;
+        let (weights, bias) = fold_normalisation(w, b, mean, scale, l.outputs);
+        for (k, &wk) in weights.iter().enumerate() {
+            let folded = wk as f32;
+            if !folded.is_finite() {
+                return Err(ImportError::NotFinite {
+                    input: k / l.outputs,
+                });
             }
+            params.push(folded);
         }
         for (j, &bj) in bias.iter().enumerate() {
             let v = bj as f32;

@@ -12,7 +12,7 @@
 //! normalisation kept. Otherwise (a clone, whose file keeps its normalisation apart, beside its
 //! fine-tunes, whose exporter folds it into the first layer) every file's normalisation is
 //! folded into its first layer first (`w'[i][j] = w[i][j] / scale[i]`, `b'[j] = b[j] - sum_i
-//! w[i][j] mean[i] / scale[i]`, in f64, as `trainer train --init-policy` imports a clone), so
+//! w[i][j] mean[i] / scale[i]`, in f64, by the same function as `trainer train --init-policy`), so
 //! that all take raw observations; the soup then has the identity normalisation and the RL
 //! exporter's clip ([`EXPORT_OBS_CLIP`]). As with the import, a file's own clip is dropped by the
 //! fold: its function is kept wherever no normalised input exceeds that clip.
@@ -20,6 +20,7 @@
 use dex_policy::{LayerDtype, PolicyView, encode_to_vec};
 
 use crate::files::export::EXPORT_OBS_CLIP;
+use crate::files::policy_import::fold_normalisation;
 
 /// Why policy files cannot be averaged.
 #[derive(Debug, thiserror::Error)]
@@ -198,28 +199,24 @@ fn normalised_weights(n: usize, weights: Option<&[f64]>) -> Result<Vec<f64>, Sou
     Ok(w.iter().map(|x| x / total).collect())
 }
 
-/// The file's values with its normalisation folded into the first layer and replaced by the
-/// identity (mean 0, scale 1); `None` when a scale is zero or a folded value not finite.
+/// The file's values with its normalisation folded into the first layer
+/// ([`fold_normalisation`], as `--init-policy` imports a clone) and replaced by the identity
+/// (mean 0, scale 1); `None` when a folded value is not finite (a zero scale).
 fn folded_values(view: &PolicyView<'_>) -> Option<Vec<f64>> {
-    let mut v: Vec<f64> = view.values().iter().map(f64::from).collect();
+    let stored: Vec<f32> = view.values().iter().collect();
     let obs = view.body().obs_dim();
     let norm = view.normalisation_offset();
     let first = view.layer(0)?;
-    let (mean, scale): (Vec<f64>, Vec<f64>) = (
-        v[norm..norm + obs].to_vec(),
-        v[norm + obs..norm + 2 * obs].to_vec(),
+    let (weights, bias) = fold_normalisation(
+        stored.get(first.weights..first.weights + first.inputs * first.outputs)?,
+        stored.get(first.biases..first.biases + first.outputs)?,
+        stored.get(norm..norm + obs)?,
+        stored.get(norm + obs..norm + 2 * obs)?,
+        first.outputs,
     );
-    for i in 0..first.inputs {
-        let inv = 1.0 / scale[i];
-        if !inv.is_finite() {
-            return None;
-        }
-        for j in 0..first.outputs {
-            let w = v[first.weights + i * first.outputs + j];
-            v[first.biases + j] -= w * mean[i] * inv;
-            v[first.weights + i * first.outputs + j] = w * inv;
-        }
-    }
+    let mut v: Vec<f64> = stored.iter().map(|&x| f64::from(x)).collect();
+    v[first.weights..first.weights + weights.len()].copy_from_slice(&weights);
+    v[first.biases..first.biases + bias.len()].copy_from_slice(&bias);
     v[norm..norm + obs].fill(0.0);
     v[norm + obs..norm + 2 * obs].fill(1.0);
     v.iter().all(|x| x.is_finite()).then_some(v)
