@@ -135,4 +135,29 @@ fn the_demonstrator_takes_over_from_a_policy() {
     assert_eq!(set, again, "deterministic");
     // Takeover without a policy is refused.
     assert!(record_with(scene(), None, &src, &settings, &|| {}).is_err());
+    // Failures only: the same episodes, the successful ones dropped (the Reach policy alone
+    // never grasps, so every DAgger episode it drives fails and is kept).
+    let failed = RecordSettings {
+        successes_only: false,
+        failures_only: true,
+        ..settings
+    };
+    let kept = record_with(scene(), Some(&lead), &src, &failed, &|| {}).unwrap();
+    assert_eq!(kept.header.successes, set.header.successes);
+    assert_eq!(kept.header.episodes, 3 - set.header.successes);
+    let dagger = RecordSettings {
+        mode: dex_trainer::files::demos::RecordMode::Dagger,
+        episodes: 2,
+        ..failed
+    };
+    let markov = DemoSource::Markov(dex_trainer::env::MarkovDemonstrator::new(Task::Grasp));
+    let all = record_with(scene(), Some(&lead), &markov, &dagger, &|| {}).unwrap();
+    assert_eq!((all.header.successes, all.header.episodes), (0, 2));
+    assert_eq!(all.rows.len(), 2 * 150);
+    // Both filters together keep nothing: refused.
+    let neither = RecordSettings {
+        successes_only: true,
+        ..failed
+    };
+    assert!(neither.validate().is_err());
 }

@@ -93,6 +93,33 @@ fn rounds_leave_their_files_and_resume() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// DAgger over the failures only, oversampled: the round's file keeps the failed episodes, and the
+/// record counts the episodes run, not their copies.
+#[test]
+fn a_failures_only_round_keeps_failed_episodes_and_counts_them_once() {
+    let scene = Scene::load().unwrap();
+    let dir = std::env::temp_dir().join(format!("dex-imitate-failed-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let cfg = ImitationConfig {
+        dagger_failures_only: true,
+        dagger_repeat: 3,
+        ..tiny()
+    };
+    let s = run_imitation(&scene, &cfg, &dir, &mut |_| {}).unwrap();
+    let d1 = DemoSet::load(&dir.join("demos-1.dxdm")).unwrap();
+    assert!(d1.header.settings.failures_only);
+    assert_eq!(d1.header.tried, 2);
+    assert_eq!(d1.header.episodes, 2 - d1.header.successes);
+    assert_eq!(d1.rows.len(), 150 * d1.header.episodes as usize);
+    assert_eq!(s.records[1].episodes, 3 + 2 + 2, "copies are not episodes");
+    assert_eq!(
+        s.records[1].transitions,
+        s.records[0].transitions + 2 * 150,
+        "copies are not transitions"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `--features`: the clone takes the controller's task features after the observation, its file
 /// lists them, and every round (the DAgger round's policy-led recording, the selection through the
 /// runtime) runs it.
@@ -142,6 +169,29 @@ fn bad_settings_are_refused() {
         ..tiny()
     };
     assert!(bad.validate().is_err());
+    for dagger_repeat in [0, 101] {
+        let bad = ImitationConfig {
+            dagger_repeat,
+            ..tiny()
+        };
+        assert!(bad.validate().is_err(), "repeat {dagger_repeat}");
+    }
+    // The DAgger rounds' filter reaches their recordings, not round 0's.
+    let failures = ImitationConfig {
+        dagger_failures_only: true,
+        dagger_repeat: 4,
+        ..tiny()
+    };
+    failures.validate().expect("valid");
+    assert!(failures.recordings(1).iter().all(|(_, r)| r.failures_only));
+    assert!(failures.recordings(0).iter().all(|(_, r)| !r.failures_only));
+    // A settings file written before the filter existed reads as it did.
+    let json = serde_json::to_value(tiny()).unwrap();
+    let mut old = json.as_object().unwrap().clone();
+    old.remove("dagger_failures_only");
+    old.remove("dagger_repeat");
+    let read: ImitationConfig = serde_json::from_value(old.into()).unwrap();
+    assert_eq!(read, tiny());
 }
 
 #[test]

@@ -94,6 +94,10 @@ pub struct RecordSettings {
     pub finger_noise: f32,
     /// Keep only episodes that end in success.
     pub successes_only: bool,
+    /// Keep only episodes that end in failure (DAgger over a policy that mostly succeeds: its
+    /// failed episodes are the states the data lacks). Not with `successes_only`.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub failures_only: bool,
     /// Who drives the episodes (the demonstrator always labels).
     #[serde(default)]
     pub mode: RecordMode,
@@ -139,6 +143,7 @@ impl RecordSettings {
             arm_noise: 0.0,
             finger_noise: 0.0,
             successes_only: true,
+            failures_only: false,
             mode: RecordMode::Demonstrator,
             reward: None,
         }
@@ -148,6 +153,11 @@ impl RecordSettings {
     pub fn validate(&self) -> Result<(), DemoError> {
         if self.episodes == 0 {
             return Err(DemoError::Settings("episodes must be at least 1".into()));
+        }
+        if self.successes_only && self.failures_only {
+            return Err(DemoError::Settings(
+                "successes only and failures only together keep no episode".into(),
+            ));
         }
         for (name, v) in [
             ("arm noise", self.arm_noise),
@@ -237,7 +247,8 @@ pub fn task_name(task: Task) -> &'static str {
 }
 
 /// Records `settings.episodes` episodes of `source` (restarted per episode) on `scene`, calling
-/// `on_episode` after each. Episodes that end in failure are dropped if `successes_only`.
+/// `on_episode` after each. Episodes that end in failure are dropped if `successes_only`, those
+/// that end in success if `failures_only`.
 pub fn record(
     scene: &Scene,
     source: &DemoSource,
@@ -330,7 +341,12 @@ pub fn record_with(
             obs = out.observation;
             if out.done {
                 successes += u32::from(out.success);
-                if out.success || !settings.successes_only {
+                let keep = if out.success {
+                    !settings.failures_only
+                } else {
+                    !settings.successes_only
+                };
+                if keep {
                     rows.extend(episode);
                     stored += 1;
                 }

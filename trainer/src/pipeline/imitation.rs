@@ -44,6 +44,12 @@ pub struct ImitationConfig {
     pub rounds: u32,
     /// Policy episodes labelled per DAgger round.
     pub episodes_per_round: u32,
+    /// DAgger rounds keep only the policy's failed episodes (of `episodes_per_round` tried): a
+    /// clone that succeeds 97-99% of the time visits the states its data lacks mostly in those.
+    pub dagger_failures_only: bool,
+    /// Each DAgger round's episodes count this many times in the cloning data (oversampling: a
+    /// few dozen failed episodes beside thousands of demonstrations).
+    pub dagger_repeat: u32,
     /// Stack only: DART episodes started with brick 1 in the hand (StackInHand's starts), so the
     /// carrying and placing part of the task gets data of its own (0: none).
     pub in_hand_episodes: u32,
@@ -76,6 +82,8 @@ impl Default for ImitationConfig {
             in_hand_episodes: 0,
             rounds: 0,
             episodes_per_round: 50,
+            dagger_failures_only: false,
+            dagger_repeat: 1,
             arm_noise: 0.1,
             finger_noise: 0.05,
             bc: BcConfig {
@@ -139,6 +147,12 @@ impl ImitationConfig {
                     .into(),
             ));
         }
+        if !(1..=100).contains(&self.dagger_repeat) {
+            return Err(ImitationError::Settings(format!(
+                "dagger_repeat {} is outside 1..=100",
+                self.dagger_repeat
+            )));
+        }
         if self.rounds > 0 && self.episodes_per_round == 0 {
             return Err(ImitationError::Settings(
                 "episodes_per_round must be at least 1 when there are DAgger rounds".into(),
@@ -165,6 +179,7 @@ impl ImitationConfig {
             arm_noise: 0.0,
             finger_noise: 0.0,
             successes_only: false,
+            failures_only: self.dagger_failures_only,
             mode: RecordMode::Dagger,
             reward: None,
         };
@@ -174,6 +189,7 @@ impl ImitationConfig {
         let clean = RecordSettings {
             episodes: self.demo_episodes,
             successes_only: true,
+            failures_only: false,
             mode: RecordMode::Demonstrator,
             ..base
         };
@@ -321,7 +337,7 @@ pub fn run_imitation(
     };
     let mut sets: Vec<DemoSet> = Vec::new();
     let mut policy: Option<Vec<u8>> = None;
-    let (mut env_steps, mut bc_steps) = (0u64, 0u64);
+    let (mut env_steps, mut bc_steps, mut tried) = (0u64, 0u64, 0u64);
     for round in 0..=cfg.rounds {
         let policy_path = dir.join(format!("policy-{round}.dxpl"));
         let started = Instant::now();
@@ -345,6 +361,11 @@ pub fn run_imitation(
                 s
             };
             env_steps += set.header.env_steps;
+            tried += u64::from(set.header.tried);
+            let copies = if round > 0 { cfg.dagger_repeat } else { 1 };
+            for _ in 1..copies {
+                sets.push(set.clone());
+            }
             sets.push(set);
         }
         let file =
@@ -371,7 +392,7 @@ pub fn run_imitation(
                     .map_or(0.0, |r| r.wall_s);
                 let rec = EvalRecord {
                     eval_index: u64::from(round),
-                    episodes: sets.iter().map(|s| u64::from(s.header.tried)).sum(),
+                    episodes: tried,
                     transitions: env_steps,
                     transitions_per_worker: vec![env_steps],
                     updates: bc_steps + bc.steps,

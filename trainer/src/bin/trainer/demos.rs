@@ -53,6 +53,10 @@ pub struct DemosArgs {
     /// Keep failed episodes too.
     #[arg(long)]
     keep_failures: bool,
+    /// Keep only the failed episodes (with --dagger: the states a mostly successful policy's
+    /// data lacks).
+    #[arg(long, conflicts_with = "keep_failures")]
+    failures_only: bool,
     /// Reward written into the rows (default: the task's own); a `trainer train` run with
     /// demonstrations needs the reward it trains with.
     #[arg(long, value_enum)]
@@ -121,7 +125,8 @@ pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
         seed: a.seed,
         arm_noise: a.arm_noise,
         finger_noise: a.finger_noise,
-        successes_only: !a.keep_failures,
+        successes_only: !a.keep_failures && !a.failures_only,
+        failures_only: a.failures_only,
         mode: match (&a.takeover, &a.dagger) {
             (Some(_), _) => RecordMode::Takeover {
                 max_step: a.takeover_max_step,

@@ -39,6 +39,12 @@ pub struct ImitateArgs {
     /// Policy episodes labelled per DAgger round.
     #[arg(long)]
     episodes_per_round: Option<u32>,
+    /// DAgger rounds keep only the policy's failed episodes.
+    #[arg(long)]
+    dagger_failures_only: bool,
+    /// Each DAgger round's episodes count this many times in the cloning data (1-100).
+    #[arg(long)]
+    dagger_repeat: Option<u32>,
     /// Behaviour-cloning gradient steps per round.
     #[arg(long)]
     bc_steps: Option<u64>,
@@ -98,6 +104,12 @@ impl ImitateArgs {
         }
         if let Some(v) = self.episodes_per_round {
             c.episodes_per_round = v;
+        }
+        if self.dagger_failures_only {
+            c.dagger_failures_only = true;
+        }
+        if let Some(v) = self.dagger_repeat {
+            c.dagger_repeat = v;
         }
         if let Some(v) = self.bc_steps {
             c.bc.steps = v;
