@@ -45,7 +45,8 @@ pub const DEMO_SEED: u64 = 5_000_000;
 /// Start seed of confirmation comparisons: a comparison (which files, how many starts, which
 /// test, which threshold) is written into docs/experiments.md before it runs on these starts, and
 /// each claim gets one. Session 19 counted about 15 fine-tuned Stack files compared on the Table II
-/// starts, so a single small p-value there is what the search over them gives by chance.
+/// starts, so a single small p-value there is what the search over them gives by chance. The
+/// `k`-th confirmation (from 0) draws its starts from `CONFIRM_SEED + 1000 k`.
 pub const CONFIRM_SEED: u64 = 6_000_000;
 /// Start seed of the held-out observation episodes
 /// ([`heldout_observations`](crate::evaluate::heldout_observations)).
