@@ -1,16 +1,19 @@
-//! How a Grasp / StackInHand / Stack policy fails: over `--episodes` starts (`trainer eval`'s seed
-//! 1,000,000, CAN quantisation on, through the runtime), for every failed episode the highest brick 1
+//! How a Grasp / StackInHand / Stack policy fails: over `--episodes` starts from `--seed` (default
+//! `trainer eval`'s 1,000,000; CAN quantisation on, through the runtime, the task features computed
+//! as the controller does for a policy that takes them), for every failed episode the highest brick 1
 //! got, where it ended (height, distance to the pinch site, offset from the stacking site) and the
 //! mean finger angle at the end; the failures are grouped by the predicates that held at some step.
 //!
 //! ```text
-//! cargo run --release -p dex-trainer --example task_failures -- POLICY.dxpl [--episodes 100]
+//! cargo run --release -p dex-trainer --example task_failures -- POLICY.dxpl [--episodes 100] \
+//!     [--seed 1000000] [--verbose] [--trace EPISODE]
 //! ```
 
 use anyhow::Context;
 use clap::Parser;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
+use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, Scene, Task};
@@ -23,6 +26,9 @@ struct Args {
     /// Episodes.
     #[arg(long, default_value_t = 100)]
     episodes: u64,
+    /// Start seed of the episodes.
+    #[arg(long, default_value_t = EVAL_SEED)]
+    seed: u64,
     /// Print every failed episode.
     #[arg(long)]
     verbose: bool,
@@ -49,7 +55,7 @@ fn main() -> anyhow::Result<()> {
     let mut groups = std::collections::BTreeMap::<String, u32>::new();
     let mut successes = 0;
     for i in 0..args.episodes {
-        let mut obs = env.reset(episode_seed(EVAL_SEED, i))?;
+        let mut obs = env.reset(episode_seed(args.seed, i))?;
         let (mut ever_reach, mut ever_grasp, mut ever_stack) = (false, false, false);
         let mut max_z = 0.0f64;
         let mut wrist_travel = 0.0f32;
@@ -57,7 +63,8 @@ fn main() -> anyhow::Result<()> {
         let out = loop {
             let input: [f32; OBS_DIM] = core::array::from_fn(|k| quantise_observation(k, obs[k]));
             let mut physical = [0.0f32; ACT_DIM];
-            mlp.act(&input, &mut physical)?;
+            let mut buf = [0.0f32; INPUT_MAX];
+            mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
             let action = physical_to_env_action(&physical.map(quantise_action));
             let out = env.step(&action)?;
             let p = out.predicates;
