@@ -112,6 +112,13 @@ fn a_failures_only_round_keeps_failed_episodes_and_counts_them_once() {
     assert_eq!(d1.header.episodes, 2 - d1.header.successes);
     assert_eq!(d1.rows.len(), 150 * d1.header.episodes as usize);
     assert_eq!(s.records[1].episodes, 3 + 2 + 2, "copies are not episodes");
+    // The repeat counts a set's rows K times in the cloning data without copying the set.
+    let d0 = DemoSet::load(&dir.join("demos-0.dxdm")).unwrap();
+    let (obs, labels) =
+        dex_trainer::pipeline::cloning::clone_rows_repeated(&[(&d0, 1), (&d1, 3)], Task::Grasp)
+            .unwrap();
+    assert_eq!(obs.len(), (d0.rows.len() + 3 * d1.rows.len()) * 44);
+    assert_eq!(labels.len(), (d0.rows.len() + 3 * d1.rows.len()) * 9);
     assert_eq!(
         s.records[1].transitions,
         s.records[0].transitions + 2 * 150,

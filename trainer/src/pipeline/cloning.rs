@@ -36,10 +36,19 @@ pub enum CloneError {
 /// The observation and label rows of `sets` (each of `task` or a task it learns from,
 /// [`Task::learns_from`]), flattened.
 pub fn clone_rows(sets: &[DemoSet], task: Task) -> Result<(Vec<f32>, Vec<f32>), CloneError> {
+    let once: Vec<(&DemoSet, u32)> = sets.iter().map(|s| (s, 1)).collect();
+    clone_rows_repeated(&once, task)
+}
+
+/// [`clone_rows`] with each set's rows `count` times (oversampling a set without copying it).
+pub fn clone_rows_repeated(
+    sets: &[(&DemoSet, u32)],
+    task: Task,
+) -> Result<(Vec<f32>, Vec<f32>), CloneError> {
     let wanted = crate::files::demos::task_name(task);
     let mut obs = Vec::new();
     let mut labels = Vec::new();
-    for s in sets {
+    for &(s, count) in sets {
         let fits = s
             .header
             .task
@@ -51,9 +60,11 @@ pub fn clone_rows(sets: &[DemoSet], task: Task) -> Result<(Vec<f32>, Vec<f32>), 
                 found: s.header.task.clone(),
             });
         }
-        for r in &s.rows {
-            obs.extend_from_slice(&r.obs);
-            labels.extend_from_slice(&r.label);
+        for _ in 0..count {
+            for r in &s.rows {
+                obs.extend_from_slice(&r.obs);
+                labels.extend_from_slice(&r.label);
+            }
         }
     }
     if obs.is_empty() {
@@ -70,8 +81,20 @@ pub fn clone_to_policy_file(
     cfg: &BcConfig,
     progress: &mut dyn FnMut(u64, f32),
 ) -> Result<(BcPolicy, Vec<u8>), CloneError> {
-    let (obs, labels) = clone_rows(sets, task)?;
-    let transitions = (obs.len() / OBS_DIM) as u64;
+    let once: Vec<(&DemoSet, u32)> = sets.iter().map(|s| (s, 1)).collect();
+    clone_repeated_to_policy_file(&once, task, cfg, progress)
+}
+
+/// [`clone_to_policy_file`] with each set's rows counted `count` times in the cloning data
+/// ([`clone_rows_repeated`]); the file's provenance counts each transition once.
+pub fn clone_repeated_to_policy_file(
+    sets: &[(&DemoSet, u32)],
+    task: Task,
+    cfg: &BcConfig,
+    progress: &mut dyn FnMut(u64, f32),
+) -> Result<(BcPolicy, Vec<u8>), CloneError> {
+    let (obs, labels) = clone_rows_repeated(sets, task)?;
+    let transitions = sets.iter().map(|(s, _)| s.rows.len() as u64).sum();
     let (inputs, dim) = if cfg.features {
         (with_features(&obs), INPUT_MAX)
     } else {

@@ -24,7 +24,7 @@ use crate::files::atomic_write::write_atomic;
 use crate::files::demos::{DEMO_SEED, DemoError, DemoSet, RecordMode, RecordSettings, record_with};
 use crate::learn::EvalRecord;
 use crate::learn::bc::BcConfig;
-use crate::pipeline::cloning::{CloneError, clone_to_policy_file};
+use crate::pipeline::cloning::{CloneError, clone_repeated_to_policy_file};
 
 // Start seed of the per-round selection evaluation (`env::seeds::SELECTION_SEED`, checkpoint
 // selection's seed), under its old path.
@@ -335,7 +335,8 @@ pub fn run_imitation(
             .collect(),
         Err(_) => Vec::new(),
     };
-    let mut sets: Vec<DemoSet> = Vec::new();
+    // Each set with the times its rows count in the cloning data (a DAgger round's `dagger_repeat`).
+    let mut sets: Vec<(DemoSet, u32)> = Vec::new();
     let mut policy: Option<Vec<u8>> = None;
     let (mut env_steps, mut bc_steps, mut tried) = (0u64, 0u64, 0u64);
     for round in 0..=cfg.rounds {
@@ -362,11 +363,7 @@ pub fn run_imitation(
             };
             env_steps += set.header.env_steps;
             tried += u64::from(set.header.tried);
-            let copies = if round > 0 { cfg.dagger_repeat } else { 1 };
-            for _ in 1..copies {
-                sets.push(set.clone());
-            }
-            sets.push(set);
+            sets.push((set, if round > 0 { cfg.dagger_repeat } else { 1 }));
         }
         let file =
             if policy_path.exists() && records.iter().any(|r| r.eval_index == u64::from(round)) {
@@ -376,9 +373,11 @@ pub fn run_imitation(
                     round,
                     steps: bc.steps,
                 });
-                let (_, file) = clone_to_policy_file(&sets, cfg.task, &bc, &mut |step, loss| {
-                    on_event(ImitationEvent::CloneStep(step, loss));
-                })?;
+                let counted: Vec<(&DemoSet, u32)> = sets.iter().map(|(s, k)| (s, *k)).collect();
+                let (_, file) =
+                    clone_repeated_to_policy_file(&counted, cfg.task, &bc, &mut |step, loss| {
+                        on_event(ImitationEvent::CloneStep(step, loss));
+                    })?;
                 write_atomic(&policy_path, &file).map_err(io(&policy_path))?;
                 let (mean_return, success_rate) = if cfg.select_episodes > 0 {
                     let e = evaluate_policy_file(&file, scene, &eval, &|| {})?;
