@@ -10,7 +10,8 @@ use common::scene;
 use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::env::{Demonstrator, Task};
 use dex_trainer::files::demos::{
-    DEMO_FORMAT_VERSION, DemoError, DemoSet, RecordSettings, record, record_with,
+    CLOSE_BURST_STEPS, DEMO_FORMAT_VERSION, DemoError, DemoSet, Keep, RecordSettings, record,
+    record_with,
 };
 
 fn small(task: Task) -> DemoSet {
@@ -138,8 +139,7 @@ fn the_demonstrator_takes_over_from_a_policy() {
     // Failures only: the same episodes, the successful ones dropped (the Reach policy alone
     // never grasps, so every DAgger episode it drives fails and is kept).
     let failed = RecordSettings {
-        successes_only: false,
-        failures_only: true,
+        keep: Keep::Failures,
         ..settings
     };
     let kept = record_with(scene(), Some(&lead), &src, &failed, &|| {}).unwrap();
@@ -154,10 +154,60 @@ fn the_demonstrator_takes_over_from_a_policy() {
     let all = record_with(scene(), Some(&lead), &markov, &dagger, &|| {}).unwrap();
     assert_eq!((all.header.successes, all.header.episodes), (0, 2));
     assert_eq!(all.rows.len(), 2 * 150);
-    // Both filters together keep nothing: refused.
-    let neither = RecordSettings {
-        successes_only: true,
-        ..failed
+}
+
+#[test]
+fn close_bursts_hold_the_executed_fingers_closing_and_keep_the_labels() {
+    // Two Markov Grasp episodes with a burst started at a tenth of the steps: the executed finger
+    // actions are +1 for runs of 3-8 steps, while the labels stay the demonstrator's (which opens
+    // the fingers again when they close away from the brick).
+    let settings = RecordSettings {
+        episodes: 2,
+        close_bursts: 0.1,
+        keep: Keep::All,
+        ..RecordSettings::new(Task::Grasp)
     };
-    assert!(neither.validate().is_err());
+    let src = DemoSource::Markov(dex_trainer::env::MarkovDemonstrator::new(Task::Grasp));
+    let set = record(scene(), &src, &settings, &|| {}).unwrap();
+    assert_eq!(set.rows.len(), 2 * 150);
+    let closing =
+        |r: &dex_trainer::files::demos::DemoRow| r.executed[6..].iter().all(|&a| a == 1.0);
+    let (lo, hi) = CLOSE_BURST_STEPS;
+    let mut runs = Vec::new();
+    let mut run = 0;
+    for r in &set.rows {
+        if closing(r) {
+            run += 1;
+        } else if run > 0 {
+            runs.push(run);
+            run = 0;
+        }
+    }
+    assert!(runs.len() >= 5, "bursts {runs:?}");
+    // A burst is at least `lo` steps (two may follow each other; the demonstrator closes too).
+    assert!(
+        runs.iter().all(|&n| n >= lo),
+        "{runs:?} (burst {lo}..={hi})"
+    );
+    let relabelled = set
+        .rows
+        .iter()
+        .filter(|r| closing(r) && r.label[6..].iter().any(|&a| a < 0.5))
+        .count();
+    assert!(
+        relabelled > 0,
+        "no burst step where the demonstrator wanted otherwise"
+    );
+    // Deterministic, and the setting travels in the header.
+    assert_eq!(record(scene(), &src, &settings, &|| {}).unwrap(), set);
+    let back = DemoSet::from_bytes(&set.to_bytes(), std::path::Path::new("x.dxdm")).unwrap();
+    assert_eq!(back.header.settings.close_bursts, 0.1);
+    // The bursts changed the episodes (recordings without them are the shipped clones' data,
+    // reproduced bit for bit: docs/experiments.md).
+    let clean = RecordSettings {
+        close_bursts: 0.0,
+        ..settings
+    };
+    let plain = record(scene(), &src, &clean, &|| {}).unwrap();
+    assert_ne!(plain.rows, set.rows);
 }

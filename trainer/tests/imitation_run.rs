@@ -6,7 +6,7 @@
 
 use dex_trainer::env::seeds::CI_SEED;
 use dex_trainer::env::{Scene, Task};
-use dex_trainer::files::demos::{DemoSet, RecordMode};
+use dex_trainer::files::demos::{DemoSet, Keep, RecordMode};
 use dex_trainer::learn::bc::BcConfig;
 use dex_trainer::pipeline::imitation::{ImitationConfig, ImitationError, run_imitation};
 
@@ -107,7 +107,7 @@ fn a_failures_only_round_keeps_failed_episodes_and_counts_them_once() {
     };
     let s = run_imitation(&scene, &cfg, &dir, &mut |_| {}).unwrap();
     let d1 = DemoSet::load(&dir.join("demos-1.dxdm")).unwrap();
-    assert!(d1.header.settings.failures_only);
+    assert_eq!(d1.header.settings.keep, Keep::Failures);
     assert_eq!(d1.header.tried, 2);
     assert_eq!(d1.header.episodes, 2 - d1.header.successes);
     assert_eq!(d1.rows.len(), 150 * d1.header.episodes as usize);
@@ -190,8 +190,18 @@ fn bad_settings_are_refused() {
         ..tiny()
     };
     failures.validate().expect("valid");
-    assert!(failures.recordings(1).iter().all(|(_, r)| r.failures_only));
-    assert!(failures.recordings(0).iter().all(|(_, r)| !r.failures_only));
+    assert!(
+        failures
+            .recordings(1)
+            .iter()
+            .all(|(_, r)| r.keep == Keep::Failures)
+    );
+    assert!(
+        failures
+            .recordings(0)
+            .iter()
+            .all(|(_, r)| r.keep == Keep::Successes)
+    );
     // A settings file written before the filter existed reads as it did.
     let json = serde_json::to_value(tiny()).unwrap();
     let mut old = json.as_object().unwrap().clone();

@@ -23,9 +23,12 @@ use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS
 use serde::{Deserialize, Serialize};
 
 use crate::cell::policy_demo::{DemoSource, PolicyDemonstration};
+use crate::env::scene::ARM_JOINTS;
 use crate::env::{Demonstration, EnvConfig, EnvError, JacoEnv, Scene, Task};
 use crate::evaluate::episode_seed;
 use crate::learn::Rng;
+
+pub use crate::files::record_settings::{CLOSE_BURST_STEPS, Keep, RecordMode, RecordSettings};
 
 // Start seed of recorded demonstrations (`env::seeds::DEMO_SEED`, apart from the other ranges
 // there), under its old path.
@@ -77,100 +80,6 @@ pub enum DemoError {
     /// The simulation failed while recording.
     #[error("simulation: {0}")]
     Env(#[from] EnvError),
-}
-
-/// How demonstrations were (or are to be) recorded.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct RecordSettings {
-    /// Task (start states and success).
-    pub task: Task,
-    /// Episodes to record.
-    pub episodes: u32,
-    /// Episode `i` starts from `episode_seed(seed, i)`.
-    pub seed: u64,
-    /// Standard deviation of Gaussian noise added to the executed arm actions (0: none).
-    pub arm_noise: f32,
-    /// Standard deviation of the noise on the executed finger actions.
-    pub finger_noise: f32,
-    /// Keep only episodes that end in success.
-    pub successes_only: bool,
-    /// Keep only episodes that end in failure (DAgger over a policy that mostly succeeds: its
-    /// failed episodes are the states the data lacks). Not with `successes_only`.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub failures_only: bool,
-    /// Who drives the episodes (the demonstrator always labels).
-    #[serde(default)]
-    pub mode: RecordMode,
-    /// Reward written into the rows (None: the task's own, [`Task::default_reward`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub reward: Option<crate::env::Reward>,
-}
-
-impl RecordSettings {
-    /// The reward the rows carry.
-    pub fn row_reward(&self) -> crate::env::Reward {
-        self.reward.unwrap_or(self.task.default_reward())
-    }
-}
-
-/// Who acts in a recorded episode; the demonstrator labels every recorded state either way.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum RecordMode {
-    /// The demonstrator acts (plus the recording noise).
-    #[default]
-    Demonstrator,
-    /// A learned policy acts for `k` steps, `k` uniform in `0..=max_step`, then the demonstrator
-    /// takes over from that state (a phase machine restarts in the phase that fits it) with a
-    /// fresh step budget; only the demonstrator's part is recorded.
-    Takeover {
-        /// Last step at which the demonstrator may take over.
-        max_step: u32,
-    },
-    /// DAgger (Ross et al. 2011): the learned policy acts for the whole episode, every state it
-    /// visits is labelled with the demonstrator's action. Needs a demonstrator whose action depends
-    /// on the state alone ([`crate::env::MarkovDemonstrator`]).
-    Dagger,
-}
-
-impl RecordSettings {
-    /// 200 clean successful episodes of `task` from [`DEMO_SEED`].
-    pub fn new(task: Task) -> Self {
-        Self {
-            task,
-            episodes: 200,
-            seed: DEMO_SEED,
-            arm_noise: 0.0,
-            finger_noise: 0.0,
-            successes_only: true,
-            failures_only: false,
-            mode: RecordMode::Demonstrator,
-            reward: None,
-        }
-    }
-
-    /// Checks the ranges.
-    pub fn validate(&self) -> Result<(), DemoError> {
-        if self.episodes == 0 {
-            return Err(DemoError::Settings("episodes must be at least 1".into()));
-        }
-        if self.successes_only && self.failures_only {
-            return Err(DemoError::Settings(
-                "successes only and failures only together keep no episode".into(),
-            ));
-        }
-        for (name, v) in [
-            ("arm noise", self.arm_noise),
-            ("finger noise", self.finger_noise),
-        ] {
-            if !(0.0..=1.0).contains(&v) {
-                return Err(DemoError::Settings(format!(
-                    "{name} {v} is outside [0, 1] (a standard deviation in action units)"
-                )));
-            }
-        }
-        Ok(())
-    }
 }
 
 /// Header of a demo file.
@@ -247,8 +156,7 @@ pub fn task_name(task: Task) -> &'static str {
 }
 
 /// Records `settings.episodes` episodes of `source` (restarted per episode) on `scene`, calling
-/// `on_episode` after each. Episodes that end in failure are dropped if `successes_only`, those
-/// that end in success if `failures_only`.
+/// `on_episode` after each; the episodes `settings.keep` names are stored.
 pub fn record(
     scene: &Scene,
     source: &DemoSource,
@@ -295,6 +203,9 @@ pub fn record_with(
     for i in 0..settings.episodes {
         let seed = episode_seed(settings.seed, u64::from(i));
         let mut noise = Rng::derive(seed, 0xDA27);
+        // Its own stream, so recordings without bursts draw exactly what they drew before.
+        let mut bursts = Rng::derive(seed, 0xB125);
+        let mut burst_left = 0usize;
         let mut obs = env.reset(seed)?;
         demo.restart();
         if let (Some(policy), RecordMode::Takeover { max_step }) = (lead.as_mut(), settings.mode) {
@@ -319,8 +230,8 @@ pub fn record_with(
                 _ => None,
             };
             let base = driven.unwrap_or(label);
-            let executed: [f32; ACT_DIM] = std::array::from_fn(|j| {
-                let sd = if j < 6 {
+            let mut executed: [f32; ACT_DIM] = std::array::from_fn(|j| {
+                let sd = if j < ARM_JOINTS {
                     settings.arm_noise
                 } else {
                     settings.finger_noise
@@ -328,6 +239,16 @@ pub fn record_with(
                 let n = if sd > 0.0 { noise.normal(0.0, sd) } else { 0.0 };
                 (base[j].clamp(-1.0, 1.0) + n).clamp(-1.0, 1.0)
             });
+            if settings.close_bursts > 0.0 {
+                if burst_left == 0 && bursts.uniform_f64() < f64::from(settings.close_bursts) {
+                    let (lo, hi) = CLOSE_BURST_STEPS;
+                    burst_left = lo + bursts.below(hi - lo + 1);
+                }
+                if burst_left > 0 {
+                    burst_left -= 1;
+                    executed[ARM_JOINTS..].fill(1.0);
+                }
+            }
             let out = env.step(&executed)?;
             env_steps += 1;
             episode.push(DemoRow {
@@ -341,12 +262,7 @@ pub fn record_with(
             obs = out.observation;
             if out.done {
                 successes += u32::from(out.success);
-                let keep = if out.success {
-                    !settings.failures_only
-                } else {
-                    !settings.successes_only
-                };
-                if keep {
+                if settings.keep.keeps(out.success) {
                     rows.extend(episode);
                     stored += 1;
                 }

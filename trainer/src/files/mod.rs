@@ -6,6 +6,8 @@
 //! - [`demos`]: demonstrations recorded as data (versioned, checksummed `.dxdm` files).
 //! - [`export`]: a trained actor as a `dex-policy` file; [`int8_export`]: its int8 twin
 //!   (calibrate, equalise, quantise, measure).
+//! - [`record_settings`]: how demonstrations are recorded (noise, close bursts, which episodes
+//!   are kept); read back from files of earlier builds.
 //! - [`policy_import`]: a policy file back into the learner's actor (the start of RL fine-tuning).
 //! - [`result_record`]: an evaluation as a `docs/results/` record.
 //! - [`soup`]: a weight-space average of policy files of one network (seeds of a fine-tune, and
@@ -16,5 +18,6 @@ pub mod demos;
 pub mod export;
 pub mod int8_export;
 pub mod policy_import;
+pub mod record_settings;
 pub mod result_record;
 pub mod soup;

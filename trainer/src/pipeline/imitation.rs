@@ -21,7 +21,9 @@ use crate::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use crate::env::{MarkovDemonstrator, Scene, Task};
 use crate::evaluate::{EvalError, EvalSettings, evaluate_policy_file};
 use crate::files::atomic_write::write_atomic;
-use crate::files::demos::{DEMO_SEED, DemoError, DemoSet, RecordMode, RecordSettings, record_with};
+use crate::files::demos::{
+    DEMO_SEED, DemoError, DemoSet, Keep, RecordMode, RecordSettings, record_with,
+};
 use crate::learn::EvalRecord;
 use crate::learn::bc::BcConfig;
 use crate::pipeline::cloning::{CloneError, clone_repeated_to_policy_file};
@@ -57,6 +59,9 @@ pub struct ImitationConfig {
     pub arm_noise: f32,
     /// Noise on the executed finger actions of the DART episodes.
     pub finger_noise: f32,
+    /// Close bursts in the DART episodes ([`RecordSettings::close_bursts`]: the probability per
+    /// step of holding the fingers closing for 3-8 steps; 0: none).
+    pub close_bursts: f32,
     /// Behaviour cloning settings (its seed is the run's seed).
     pub bc: BcConfig,
     /// Selection starts per round (0: keep the last round).
@@ -86,6 +91,7 @@ impl Default for ImitationConfig {
             dagger_repeat: 1,
             arm_noise: 0.1,
             finger_noise: 0.05,
+            close_bursts: 0.0,
             bc: BcConfig {
                 steps: 30_000,
                 features: true,
@@ -178,8 +184,12 @@ impl ImitationConfig {
             seed,
             arm_noise: 0.0,
             finger_noise: 0.0,
-            successes_only: false,
-            failures_only: self.dagger_failures_only,
+            close_bursts: 0.0,
+            keep: if self.dagger_failures_only {
+                Keep::Failures
+            } else {
+                Keep::All
+            },
             mode: RecordMode::Dagger,
             reward: None,
         };
@@ -188,8 +198,7 @@ impl ImitationConfig {
         }
         let clean = RecordSettings {
             episodes: self.demo_episodes,
-            successes_only: true,
-            failures_only: false,
+            keep: Keep::Successes,
             mode: RecordMode::Demonstrator,
             ..base
         };
@@ -198,6 +207,7 @@ impl ImitationConfig {
             seed: seed + 1,
             arm_noise: self.arm_noise,
             finger_noise: self.finger_noise,
+            close_bursts: self.close_bursts,
             ..clean
         };
         let in_hand = RecordSettings {

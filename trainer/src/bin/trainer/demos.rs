@@ -10,7 +10,9 @@ use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::env::{Demonstrator, MarkovDemonstrator};
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
-use dex_trainer::files::demos::{DEMO_SEED, DemoSet, RecordMode, RecordSettings, record_with};
+use dex_trainer::files::demos::{
+    DEMO_SEED, DemoSet, Keep, RecordMode, RecordSettings, record_with,
+};
 use dex_trainer::learn::bc::BcConfig;
 
 use dex_trainer::pipeline::train_settings::{RewardArg, TaskArg};
@@ -40,6 +42,10 @@ pub struct DemosArgs {
     /// Noise on the executed finger actions.
     #[arg(long, default_value_t = 0.0)]
     finger_noise: f32,
+    /// Close bursts: the probability per step of holding the executed finger actions fully
+    /// closing for 3-8 steps (labels stay the demonstrator's; 0: none, at most 0.5).
+    #[arg(long, default_value_t = 0.0)]
+    close_bursts: f32,
     /// Demonstrator takeover: this policy drives each episode for a random number of steps (up to
     /// --takeover-max-step), then the demonstrator takes over; only its part is recorded.
     #[arg(long, conflicts_with = "dagger")]
@@ -125,8 +131,14 @@ pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
         seed: a.seed,
         arm_noise: a.arm_noise,
         finger_noise: a.finger_noise,
-        successes_only: !a.keep_failures && !a.failures_only,
-        failures_only: a.failures_only,
+        close_bursts: a.close_bursts,
+        keep: if a.failures_only {
+            Keep::Failures
+        } else if a.keep_failures {
+            Keep::All
+        } else {
+            Keep::Successes
+        },
         mode: match (&a.takeover, &a.dagger) {
             (Some(_), _) => RecordMode::Takeover {
                 max_step: a.takeover_max_step,

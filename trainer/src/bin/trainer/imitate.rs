@@ -33,6 +33,10 @@ pub struct ImitateArgs {
     /// Noise on the DART episodes' finger actions.
     #[arg(long)]
     finger_noise: Option<f32>,
+    /// Close bursts in the DART episodes: the probability per step of holding the executed
+    /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
+    #[arg(long)]
+    close_bursts: Option<f32>,
     /// DAgger rounds after round 0.
     #[arg(long)]
     rounds: Option<u32>,
@@ -98,6 +102,9 @@ impl ImitateArgs {
         }
         if let Some(v) = self.finger_noise {
             c.finger_noise = v;
+        }
+        if let Some(v) = self.close_bursts {
+            c.close_bursts = v;
         }
         if let Some(v) = self.rounds {
             c.rounds = v;
