@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One 3-rank distributed Reach run (rank 0 and two worker ranks, W = 1 thread each; the paper's
+# One 3-rank distributed run of TASK (default reach; rank 0 and two worker ranks, W = 1 thread each; the paper's
 # learner, 128-128 networks, R = 2, 2 evaluation episodes every 20 episodes) for the throughput
 # figures of docs/benchmarks.md ("Distributed ADPG-R on namespace hosts"): transitions/s and
 # updates/s between the first and last evaluation record, exchanges/s, bytes per exchange (the
@@ -8,7 +8,8 @@
 # On one host:         bash scripts/bench-cluster.sh OUT [TRANSITIONS=9000] [K=10]
 # On namespace hosts:  bash scripts/cluster-sim.sh run --hosts 3 --rate 1gbit -- \
 #                        bash scripts/bench-cluster.sh OUT [TRANSITIONS] [K]
-# Environment: TRAINER (default target/release/trainer, built with --features mpi).
+# Environment: TRAINER (default target/release/trainer, built with --features mpi); TASK (reach,
+# grasp, stack-in-hand or stack; default reach).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:?OUT: the run folder}
@@ -18,7 +19,9 @@ bin=$(realpath "${TRAINER:-target/release/trainer}")
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-printf 'task = "reach"\n[run.eval]\nevery_episodes = 20\nepisodes = 2\n' > "$out.toml"
+task=${TASK:-reach}
+case $task in reach|grasp|stack-in-hand|stack) ;; *) echo "error: TASK is reach, grasp, stack-in-hand or stack" >&2; exit 2 ;; esac
+printf 'task = "%s"\n[run.eval]\nevery_episodes = 20\nepisodes = 2\n' "$task" > "$out.toml"
 wire() { # bytes through rank 0's host link (h0 <-> bridge), both ways
   if [ -n "${CLUSTER_SIM_NS_PREFIX:-}" ]; then
     ip netns exec "$CLUSTER_SIM_NS_PREFIX-sw" sh -c \
@@ -32,7 +35,7 @@ else
   launch=(mpirun --oversubscribe --mca btl tcp,self)
   where="one host (loopback)"
 fi
-echo "== $where, K = $k, $(uptime | sed 's/.*load/load/')"
+echo "== $task, $where, K = $k, $(uptime | sed 's/.*load/load/')"
 w0=$(wire)
 t0=$(date +%s.%N)
 "${launch[@]}" -np 3 "$bin" train --distributed --config "$out.toml" --preset paper \

@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
 # A distributed Reach run (3 ranks) with a fault on worker rank 2 once the first checkpoint is
 # written: `kill` (SIGKILL), `stop` (SIGSTOP, then SIGCONT after HOLD s) or `cut` (its host's
-# cable out of the bridge for HOLD s, then back in; only inside scripts/cluster-sim.sh). Prints
+# cable out of the bridge for HOLD s, then back in; only inside scripts/cluster-sim.sh), or
+# `none` (the same run undisturbed, to compare the policies with). Prints
 # rank 0's membership lines, the ranks' counter lines, mpirun's status, the run's transitions and
 # the final evaluation (docs/distributed.md, "Faults"; docs/benchmarks.md).
 # Usage: bash scripts/distributed-fault-run.sh MODE OUT [TRANSITIONS=12000] [HOLD=15]
 #   (under cluster-sim: bash scripts/cluster-sim.sh run --hosts 3 -- bash scripts/distributed-fault-run.sh cut runs/x)
-# Environment: TRAINER (default target/release/trainer, built with --features mpi).
+# Environment: TRAINER (default target/release/trainer, built with --features mpi); LEARNER:
+# `paper` (default: the paper's learner, --preset paper) or `default` (Reach's default, the
+# learner from demonstrations that reaches 100%); EVAL (final evaluation episodes, default 50).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=${1:?MODE: kill, stop or cut}
@@ -14,8 +17,11 @@ out=${2:?OUT: the run folder}
 budget=${3:-12000}
 hold=${4:-15}
 bin=$(realpath "${TRAINER:-target/release/trainer}")
-case $mode in kill|stop) ;; cut) [ -n "${CLUSTER_SIM_CUT:-}" ] || { echo "error: cut needs scripts/cluster-sim.sh" >&2; exit 2; } ;;
-  *) echo "error: MODE is kill, stop or cut" >&2; exit 2 ;; esac
+case $mode in kill|stop|none) ;; cut) [ -n "${CLUSTER_SIM_CUT:-}" ] || { echo "error: cut needs scripts/cluster-sim.sh" >&2; exit 2; } ;;
+  *) echo "error: MODE is kill, stop, cut or none" >&2; exit 2 ;; esac
+case ${LEARNER:-paper} in paper) learner=(--preset paper) ;; default) learner=() ;;
+  *) echo "error: LEARNER is paper or default" >&2; exit 2 ;; esac
+evals=${EVAL:-50}
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
@@ -27,7 +33,7 @@ fi
 log="$out.log"
 t0=$(date +%s.%N)
 "${launch[@]}" --mca orte_abort_on_non_zero_status 0 -np 3 "$bin" train --distributed --task reach \
-  --preset paper --checkpoint-every 2000 --select-best-episodes 0 --final-eval-episodes 50 \
+  "${learner[@]}" --checkpoint-every 2000 --select-best-episodes 0 --final-eval-episodes "$evals" \
   --seeds 0 --quiet --rank-timeout 5 --transitions "$budget" --out "$out" >"$log" 2>&1 &
 job=$!
 stamp() { printf '%7.1f s  %s\n' "$(echo "$(date +%s.%N) - $t0" | bc)" "$*"; }
@@ -41,6 +47,7 @@ for p in $(pgrep -f -- "--out $out" || true); do
 done
 [ -n "$rank2" ] || { echo "error: rank 2's process not found" >&2; kill "$job"; exit 1; }
 case $mode in
+  none) stamp "no fault" ;;
   kill) stamp "SIGKILL to rank 2 (pid $rank2)"; kill -KILL "$rank2" ;;
   stop) stamp "SIGSTOP to rank 2 (pid $rank2)"; kill -STOP "$rank2"; sleep "$hold"
         stamp "SIGCONT to rank 2"; kill -CONT "$rank2" ;;

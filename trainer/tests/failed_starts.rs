@@ -41,16 +41,16 @@ fn settings(out: &Path) -> TrainSettings {
     s
 }
 
-/// Trains `s` (resuming when asked) and returns the screenings it reported and whether it ran one.
-fn train(s: TrainSettings, scene: &Scene, resume: bool) -> (Vec<Screening>, bool) {
+/// Trains `s` (resuming when asked) and returns the screenings it reported and how many it ran.
+fn train(s: TrainSettings, scene: &Scene, resume: bool) -> (Vec<Screening>, usize) {
     let mut screened = Vec::new();
-    let mut ran = false;
+    let mut ran = 0;
     let done = TrainPlan::new(s)
         .unwrap()
         .train(scene, resume, &AtomicBool::new(false), &mut |e| match e {
             TrainEvent::ScreeningStarted { starts, .. } => {
                 assert_eq!(starts, SCREENED);
-                ran = true;
+                ran += 1;
             }
             TrainEvent::Screened {
                 screening,
@@ -74,7 +74,7 @@ fn the_starting_policy_is_screened_once_and_its_failed_starts_listed() {
     let _ = std::fs::remove_dir_all(&out);
     let s = settings(&out);
     let (screened, ran) = train(s.clone(), &scene, false);
-    assert!(ran);
+    assert_eq!(ran, 1);
     let [screening] = &screened[..] else {
         panic!("one screening per seed: {screened:?}");
     };
@@ -114,7 +114,7 @@ fn the_starting_policy_is_screened_once_and_its_failed_starts_listed() {
     assert_eq!(&kept, screening);
     // A resumed run reuses the list without screening again.
     let (again, ran) = train(s.clone(), &scene, true);
-    assert!(!ran, "the kept screening is reused");
+    assert_eq!(ran, 0, "the kept screening is reused");
     assert_eq!(again, screened);
     let mut fresh = settings(&fresh_path("failed-starts", "more"));
     fresh.start.failed_starts = SCREENED;
@@ -131,6 +131,27 @@ fn the_starting_policy_is_screened_once_and_its_failed_starts_listed() {
         "{err}"
     );
     let _ = std::fs::remove_dir_all(&fresh.out);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn a_run_of_two_seeds_screens_once() {
+    let scene = Scene::load().unwrap();
+    let out = fresh_path("failed-starts", "two-seeds");
+    let _ = std::fs::remove_dir_all(&out);
+    let mut s = settings(&out);
+    s.seeds = vec![0, 1];
+    let (screened, ran) = train(s, &scene, false);
+    assert_eq!(ran, 1, "the second seed takes the first one's list");
+    let [a, b] = &screened[..] else {
+        panic!("one screening per seed: {screened:?}");
+    };
+    assert_eq!(a, b);
+    for seed in ["seed-0", "seed-1"] {
+        let f = out.join(seed).join("failed_starts.json");
+        let kept: Screening = serde_json::from_str(&std::fs::read_to_string(&f).unwrap()).unwrap();
+        assert_eq!(&kept, a, "{seed}");
+    }
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -39,8 +39,9 @@ fn sha256_hex(bytes: &[u8]) -> String {
 }
 
 /// The screening of `init` for seed folder `dir` (`start.failed_starts` starts), read from
-/// `failed_starts.json` when that file screened the same policy bytes on the same starts, else run
-/// and written there.
+/// `failed_starts.json` when that file screened the same policy bytes on the same starts, else
+/// taken from another seed folder of the run that screened them (the screening does not depend on
+/// the seed: a run of several seeds screens once), else run; written there either way.
 pub(super) fn screen(
     s: &TrainSettings,
     (seed, init): (u64, &Path),
@@ -58,12 +59,21 @@ pub(super) fn screen(
                 path: path.clone(),
                 source,
             })?;
-        if kept.sha256 == sha256
-            && kept.screened == s.start.failed_starts
-            && kept.start_seed == SCREEN_SEED
-        {
+        if kept.screens(&sha256, s.start.failed_starts) {
             return Ok(kept);
         }
+    }
+    if let Some(shared) = sibling_screening(dir, &sha256, s.start.failed_starts) {
+        let screening = Screening {
+            policy: init.to_path_buf(),
+            ..shared
+        };
+        std::fs::create_dir_all(dir).map_err(|source| TrainRunError::Create {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        write_file(&path, serde_json::to_string_pretty(&screening)?.as_bytes())?;
+        return Ok(screening);
     }
     let settings = eval_settings(s, s.start.failed_starts, SCREEN_SEED);
     on_event(TrainEvent::ScreeningStarted {
@@ -91,7 +101,34 @@ pub(super) fn screen(
     Ok(screening)
 }
 
+/// A screening of the same policy bytes on the same starts in another seed folder beside `dir`
+/// (`seed-*/failed_starts.json`); lists that do not read are left to their own seed's run.
+fn sibling_screening(dir: &Path, sha256: &str, starts: u32) -> Option<Screening> {
+    let parent = dir.parent()?;
+    let mut folders: Vec<PathBuf> = std::fs::read_dir(parent)
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p != dir
+                && p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with("seed-"))
+        })
+        .collect();
+    folders.sort();
+    folders.into_iter().find_map(|f| {
+        let text = std::fs::read_to_string(f.join(SCREEN_FILE)).ok()?;
+        let kept: Screening = serde_json::from_str(&text).ok()?;
+        kept.screens(sha256, starts).then_some(kept)
+    })
+}
+
 impl Screening {
+    /// Whether this screening ran the policy of `sha256` on the `starts` screening starts.
+    fn screens(&self, sha256: &str, starts: u32) -> bool {
+        self.sha256 == sha256 && self.screened == starts && self.start_seed == SCREEN_SEED
+    }
+
     /// The revisits of the run's start states.
     pub fn revisits(&self, probability: f64) -> Revisits {
         Revisits {
