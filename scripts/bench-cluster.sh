@@ -18,7 +18,6 @@ k=${3:-10}
 bin=$(realpath "${TRAINER:-target/release/trainer}")
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 task=${TASK:-reach}
 case $task in reach|grasp|stack-in-hand|stack) ;; *) echo "error: TASK is reach, grasp, stack-in-hand or stack" >&2; exit 2 ;; esac
 printf 'task = "%s"\n[run.eval]\nevery_episodes = 20\nepisodes = 2\n' "$task" > "$out.toml"
@@ -28,13 +27,7 @@ wire() { # bytes through rank 0's host link (h0 <-> bridge), both ways
       'echo $(( $(cat /sys/class/net/v0/statistics/tx_bytes) + $(cat /sys/class/net/v0/statistics/rx_bytes) ))'
   else echo 0; fi
 }
-if [ -n "${CLUSTER_SIM_MPIRUN:-}" ]; then
-  launch=("$CLUSTER_SIM_MPIRUN" --map-by node --bind-to none)
-  where="3 namespace hosts"
-else
-  launch=(mpirun --oversubscribe --mca btl tcp,self)
-  where="one host (loopback)"
-fi
+source scripts/mpi-launch.sh
 echo "== $task, $where, K = $k, $(uptime | sed 's/.*load/load/')"
 w0=$(wire)
 t0=$(date +%s.%N)

@@ -24,12 +24,7 @@ case ${LEARNER:-paper} in paper) learner=(--preset paper) ;; default) learner=()
 evals=${EVAL:-50}
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-if [ -n "${CLUSTER_SIM_MPIRUN:-}" ]; then
-  launch=("$CLUSTER_SIM_MPIRUN" --map-by node --bind-to none)
-else
-  launch=(mpirun --oversubscribe --mca btl tcp,self)
-fi
+source scripts/mpi-launch.sh
 log="$out.log"
 t0=$(date +%s.%N)
 "${launch[@]}" --mca orte_abort_on_non_zero_status 0 -np 3 "$bin" train --distributed --task reach \

@@ -2,8 +2,9 @@
 # What a larger exchange interval K costs in learning (issue #33, docs/benchmarks.md "The exchange
 # against the link"): one 3-rank distributed run (rank 0 and two worker ranks, W = 1 thread each)
 # of TASK's learner from demonstrations (`--preset demos`) with `--exchange-every K`, then its
-# exported file on EVAL final-evaluation starts. Prints the exchange counters (updates per push is
-# the staleness a slow link forces) and the success with its interval.
+# exported file (the best selection checkpoint) on EVAL final-evaluation starts. Prints the
+# selection curve (30 starts every 5,000 transitions), the exchange counters (updates per push is
+# the staleness a slow link forces) and the final success with its interval.
 # Usage: bash scripts/distributed-k-learning.sh OUT K SEED [TASK=grasp] [TRANSITIONS=20000]
 #   (on namespace hosts: bash scripts/cluster-sim.sh run --hosts 3 --rate 1gbit -- bash scripts/distributed-k-learning.sh ...)
 # Environment: TRAINER (default target/release/trainer, built with --features mpi); EVAL (200).
@@ -17,18 +18,13 @@ budget=${5:-20000}
 bin=$(realpath "${TRAINER:-target/release/trainer}")
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
-export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-if [ -n "${CLUSTER_SIM_MPIRUN:-}" ]; then
-  launch=("$CLUSTER_SIM_MPIRUN" --map-by node --bind-to none)
-else
-  launch=(mpirun --oversubscribe --mca btl tcp,self)
-fi
+source scripts/mpi-launch.sh
 t0=$(date +%s.%N)
 "${launch[@]}" -np 3 "$bin" train --distributed --task "$task" --preset demos \
   --transitions "$budget" --seeds "$seed" --exchange-every "$k" \
   --final-eval-episodes "${EVAL:-200}" --quiet --out "$out" > "$out.log" 2>&1
 t1=$(date +%s.%N)
-grep -E '^rank ' "$out.log" || true
+grep -E '^rank |selection at' "$out.log" || true
 python3 - "$out/seed-$seed" "$t0" "$t1" "$k" <<'PY'
 import json, math, sys
 d, t0, t1, k = sys.argv[1], float(sys.argv[2]), float(sys.argv[3]), sys.argv[4]

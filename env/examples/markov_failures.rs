@@ -7,7 +7,7 @@
 //!
 //! ```text
 //! cargo run --release -p dex-env --example markov_failures -- --task stack [--episodes 1000] \
-//!     [--seed 0] [--threads 2] [--trace SEED] [--seeds 3,17,42]
+//!     [--seed 0] [--threads 2] [--trace SEED] [--seeds 3,17,42] [--tuck-first]
 //! ```
 
 use std::collections::BTreeMap;
@@ -49,11 +49,13 @@ fn main() -> Result<(), BoxError> {
     let episodes: u64 = flag(&args, "--episodes", 200)?;
     let seed: u64 = flag(&args, "--seed", 0)?;
     let threads: u64 = flag(&args, "--threads", 2)?;
+    // The demonstrator with `MarkovDemonstrator::with_tuck_first`.
+    let tuck_first = args.iter().any(|a| a == "--tuck-first");
     let trace: Option<u64> =
         flag(&args, "--trace", u64::MAX).map(|t| (t != u64::MAX).then_some(t))?;
     let scene = Scene::load()?;
     if let Some(s) = trace {
-        return trace_episode(&scene, task, s);
+        return trace_episode(&scene, task, s, tuck_first);
     }
     let list: Vec<u64> = flag(&args, "--seeds", String::new())?
         .split(',')
@@ -76,7 +78,7 @@ fn main() -> Result<(), BoxError> {
                     let seeds = (0..episodes)
                         .filter(|e| e % threads == t)
                         .map(|e| list.get(e as usize).copied().unwrap_or(seed + e));
-                    run(scene, task, seeds)
+                    run(scene, task, seeds, tuck_first)
                 })
             })
             .collect();
@@ -120,9 +122,10 @@ fn run(
     scene: &Scene,
     task: Task,
     seeds: impl Iterator<Item = u64>,
+    tuck_first: bool,
 ) -> Result<(u64, Vec<Failure>), BoxError> {
     let mut env = JacoEnv::new(scene, EnvConfig::new(task));
-    let demo = MarkovDemonstrator::new(task);
+    let demo = MarkovDemonstrator::new(task).with_tuck_first(tuck_first);
     let mut successes = 0;
     let mut failures = Vec::new();
     for seed in seeds {
@@ -179,9 +182,9 @@ fn in_brick1(env: &JacoEnv, p: [f64; 3]) -> [f64; 3] {
     v.into()
 }
 
-fn trace_episode(scene: &Scene, task: Task, seed: u64) -> Result<(), BoxError> {
+fn trace_episode(scene: &Scene, task: Task, seed: u64, tuck_first: bool) -> Result<(), BoxError> {
     let mut env = JacoEnv::new(scene, EnvConfig::new(task));
-    let demo = MarkovDemonstrator::new(task);
+    let demo = MarkovDemonstrator::new(task).with_tuck_first(tuck_first);
     env.reset(seed)?;
     let tips: Vec<usize> = (1..=3)
         .map(|k| {

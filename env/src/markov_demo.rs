@@ -46,6 +46,11 @@ use std::f64::consts::PI;
 
 /// The finger (proximal phalanx) bodies, whose origins are the knuckles.
 const KNUCKLES: [&str; FINGER_JOINTS] = ["hand/b_finger_1", "hand/b_finger_2", "hand/b_finger_3"];
+const TIPS: [&str; FINGER_JOINTS] = [
+    "hand/b_finger_tip_1",
+    "hand/b_finger_tip_2",
+    "hand/b_finger_tip_3",
+];
 
 /// Horizontal distance from `p` to the footprint of a brick at `origin` with orientation `m`
 /// (row-major), 0 inside it.
@@ -76,6 +81,15 @@ pub const TUCKED: f64 = 0.95;
 /// it and hold the hand above the grasp point (most of the remaining Grasp failures, brick 2 about
 /// 8 cm away). The knuckle is fixed in the hand, so the choice does not flip as the finger moves.
 pub const TUCK_GAP: f64 = 0.03;
+/// With [`MarkovDemonstrator::with_tuck_first`]: a finger that should be tucked holds the hand at
+/// the approach height while its angle is at most this (rad) ...
+pub const TUCK_HOLD_FROM: f64 = TUCKED - 0.15;
+/// ... and lets it descend freely from this angle on (a linear ramp between the two, so the label
+/// is a continuous function of the finger's angle).
+pub const TUCK_HOLD_TO: f64 = TUCKED - 0.05;
+/// The hold applies only to a finger whose tip is within this horizontal distance (m) of brick 2's
+/// footprint: the tip that would come down on brick 2 (or rests on it).
+pub const TUCK_HOLD_TIP_GAP: f64 = 0.015;
 /// The hand grasps brick 1 from the other side (the half turn from the brick's yaw nearest its own)
 /// when, at the grasp point, a knuckle would come within this distance (m) of brick 2's footprint and
 /// the other side keeps the knuckles further away. A function of the state (brick poses, hand yaw):
@@ -145,12 +159,34 @@ pub enum MarkovPhase {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MarkovDemonstrator {
     task: Task,
+    tuck_first: bool,
 }
 
 impl MarkovDemonstrator {
     /// The demonstrator for `task` (Reach: approach only).
     pub const fn new(task: Task) -> Self {
-        Self { task }
+        Self {
+            task,
+            tuck_first: false,
+        }
+    }
+
+    /// Tuck first: while approaching, a finger that should be tucked and is not yet
+    /// ([`tuck_hold`]) holds the hand up, so it descends only with its fingers tucked. Without it
+    /// a finger whose tip came to rest on brick 2 cannot tuck (the tip is pressed on the brick)
+    /// and the hand, held about 1 cm above the grasp point, never reaches it: the state in which
+    /// 20 of the Grasp clone's 26 failures in 2000 starts stalled, and from which this
+    /// demonstrator without the switch recovered in 9 of 20 (docs/experiments.md, session 21).
+    pub const fn with_tuck_first(self, on: bool) -> Self {
+        Self {
+            tuck_first: on,
+            ..self
+        }
+    }
+
+    /// Whether [`MarkovDemonstrator::with_tuck_first`] is on.
+    pub const fn tuck_first(&self) -> bool {
+        self.tuck_first
     }
 
     /// The phase it is in at the environment's state.
@@ -191,12 +227,24 @@ impl MarkovDemonstrator {
                 .name_to_id(MjtObjBase::mjOBJ_BODY, KNUCKLES[k])
                 .map(body)
         });
-        let approach_fingers: [f64; FINGER_JOINTS] = core::array::from_fn(|k| {
-            let q = finger_joints
+        let finger_q = |k: usize| {
+            finger_joints
                 .get(k)
                 .and_then(|&a| data.qpos().get(a).copied())
-                .unwrap_or(0.0);
-            let near_brick2 = knuckles[k].is_some_and(|p| footprint_gap(&p, &b2, &m2) < TUCK_GAP);
+                .unwrap_or(0.0)
+        };
+        let near_brick2: [bool; FINGER_JOINTS] = core::array::from_fn(|k| {
+            knuckles[k].is_some_and(|p| footprint_gap(&p, &b2, &m2) < TUCK_GAP)
+        });
+        let tip_over_brick2 = |k: usize| {
+            model
+                .name_to_id(MjtObjBase::mjOBJ_BODY, TIPS[k])
+                .map(body)
+                .is_some_and(|p| footprint_gap(&p, &b2, &m2) < TUCK_HOLD_TIP_GAP)
+        };
+        let approach_fingers: [f64; FINGER_JOINTS] = core::array::from_fn(|k| {
+            let q = finger_q(k);
+            let near_brick2 = near_brick2[k];
             let want = if near_brick2 {
                 TUCKED
             } else {
@@ -339,6 +387,14 @@ impl MarkovDemonstrator {
             let xy = Vector2::new(to_grasp[0], to_grasp[1]).norm();
             let yaw_err = (grasp_yaw - hand_yaw).abs();
             let w = (2.0 * (xy / DESCEND_XY).max(yaw_err / DESCEND_YAW) - 1.0).clamp(0.0, 1.0);
+            let w = if self.tuck_first {
+                (0..FINGER_JOINTS)
+                    .filter(|&k| near_brick2[k] && tip_over_brick2(k))
+                    .map(|k| tuck_hold(finger_q(k)))
+                    .fold(w, f64::max)
+            } else {
+                w
+            };
             let w = if self.task == Task::Reach { 0.0 } else { w };
             let target = [
                 grasp_point[0],
@@ -359,6 +415,13 @@ impl MarkovDemonstrator {
         }
         (phase, action)
     }
+}
+
+/// How far up (0: free to descend, 1: at the approach height) a finger that should be tucked and
+/// stands at angle `q` holds the hand ([`MarkovDemonstrator::with_tuck_first`]): 1 up to
+/// [`TUCK_HOLD_FROM`], 0 from [`TUCK_HOLD_TO`], linear between.
+pub fn tuck_hold(q: f64) -> f64 {
+    ((TUCK_HOLD_TO - q) / (TUCK_HOLD_TO - TUCK_HOLD_FROM)).clamp(0.0, 1.0)
 }
 
 impl Demonstration for MarkovDemonstrator {

@@ -282,6 +282,7 @@ pub fn record_with(
                 "{}{}",
                 match source {
                     DemoSource::Scripted(_) => "scripted",
+                    DemoSource::Markov(m) if m.tuck_first() => "markov (tuck first)",
                     DemoSource::Markov(_) => "markov",
                     DemoSource::Policy(_) => "policy",
                 },

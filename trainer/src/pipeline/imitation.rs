@@ -59,6 +59,10 @@ pub struct ImitationConfig {
     pub arm_noise: f32,
     /// Noise on the executed finger actions of the DART episodes.
     pub finger_noise: f32,
+    /// The Markov teacher tucks first ([`MarkovDemonstrator::with_tuck_first`]): it labels every
+    /// recorded state (clean, DART and DAgger episodes) holding the hand up while a finger whose
+    /// tip is over brick 2 is not yet tucked.
+    pub tuck_first: bool,
     /// Close bursts in the DART episodes ([`RecordSettings::close_bursts`]: the probability per
     /// step of holding the fingers closing for 3-8 steps; 0: none).
     pub close_bursts: f32,
@@ -92,6 +96,7 @@ impl Default for ImitationConfig {
             arm_noise: 0.1,
             finger_noise: 0.05,
             close_bursts: 0.0,
+            tuck_first: false,
             bc: BcConfig {
                 steps: 30_000,
                 features: true,
@@ -324,7 +329,8 @@ pub fn run_imitation(
         Ok(_) => {}
         Err(_) => write_atomic(&settings_path, settings.as_bytes()).map_err(io(&settings_path))?,
     }
-    let expert = |task| DemoSource::Markov(MarkovDemonstrator::new(task));
+    let expert =
+        |task| DemoSource::Markov(MarkovDemonstrator::new(task).with_tuck_first(cfg.tuck_first));
     let bc = BcConfig {
         seed: cfg.seed,
         ..cfg.bc.clone()

@@ -33,6 +33,10 @@ pub struct ImitateArgs {
     /// Noise on the DART episodes' finger actions.
     #[arg(long)]
     finger_noise: Option<f32>,
+    /// The Markov teacher tucks first: it holds the hand up while a finger whose tip is over
+    /// brick 2 is not yet tucked (docs/imitation.md).
+    #[arg(long)]
+    tuck_first: bool,
     /// Close bursts in the DART episodes: the probability per step of holding the executed
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
@@ -105,6 +109,9 @@ impl ImitateArgs {
         }
         if let Some(v) = self.close_bursts {
             c.close_bursts = v;
+        }
+        if self.tuck_first {
+            c.tuck_first = true;
         }
         if let Some(v) = self.rounds {
             c.rounds = v;
