@@ -432,3 +432,26 @@ impl Demonstration for MarkovDemonstrator {
         Ok(MarkovDemonstrator::act(self, env))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tuck_hold_is_a_ramp_over_the_finger_angle() {
+        assert_eq!(tuck_hold(0.0), 1.0);
+        assert_eq!(tuck_hold(TUCK_HOLD_FROM), 1.0);
+        assert_eq!(tuck_hold(TUCK_HOLD_TO), 0.0);
+        assert_eq!(tuck_hold(TUCKED), 0.0);
+        let mid = tuck_hold(0.5 * (TUCK_HOLD_FROM + TUCK_HOLD_TO));
+        assert!((mid - 0.5).abs() < 1e-9, "{mid}");
+        // Non-increasing in the angle: a finger closer to tucked never holds the hand higher.
+        let mut last = f64::INFINITY;
+        for i in 0..=100 {
+            let h = tuck_hold(0.7 + 0.003 * f64::from(i));
+            assert!(h <= last);
+            last = h;
+        }
+        assert!(!MarkovDemonstrator::new(Task::Grasp).tuck_first());
+    }
+}
