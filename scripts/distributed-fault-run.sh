@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A distributed Reach run (3 ranks) with a fault on worker rank 2 once the first checkpoint is
+# A distributed run (3 ranks; Reach unless TASK says otherwise) with a fault on worker rank 2 once the first checkpoint is
 # written: `kill` (SIGKILL), `stop` (SIGSTOP, then SIGCONT after HOLD s) or `cut` (its host's
 # cable out of the bridge for HOLD s, then back in; only inside scripts/cluster-sim.sh), or
 # `none` (the same run undisturbed, to compare the policies with). Prints
@@ -7,9 +7,11 @@
 # the final evaluation (docs/distributed.md, "Faults"; docs/benchmarks.md).
 # Usage: bash scripts/distributed-fault-run.sh MODE OUT [TRANSITIONS=12000] [HOLD=15]
 #   (under cluster-sim: bash scripts/cluster-sim.sh run --hosts 3 -- bash scripts/distributed-fault-run.sh cut runs/x)
-# Environment: TRAINER (default target/release/trainer, built with --features mpi); LEARNER:
-# `paper` (default: the paper's learner, --preset paper) or `default` (Reach's default, the
-# learner from demonstrations that reaches 100%); EVAL (final evaluation episodes, default 50).
+# Environment: TRAINER (default target/release/trainer, built with --features mpi); TASK (reach,
+# the default, or grasp); LEARNER: `paper` (default: the paper's learner, --preset paper),
+# `demos` (the learner from demonstrations, --preset demos) or `default` (the task's default
+# pipeline: for Reach the learner from demonstrations that reaches 100%); EVAL (final evaluation
+# episodes, default 50).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=${1:?MODE: kill, stop or cut}
@@ -19,15 +21,17 @@ hold=${4:-15}
 bin=$(realpath "${TRAINER:-target/release/trainer}")
 case $mode in kill|stop|none) ;; cut) [ -n "${CLUSTER_SIM_CUT:-}" ] || { echo "error: cut needs scripts/cluster-sim.sh" >&2; exit 2; } ;;
   *) echo "error: MODE is kill, stop, cut or none" >&2; exit 2 ;; esac
-case ${LEARNER:-paper} in paper) learner=(--preset paper) ;; default) learner=() ;;
-  *) echo "error: LEARNER is paper or default" >&2; exit 2 ;; esac
+case ${LEARNER:-paper} in paper) learner=(--preset paper) ;; demos) learner=(--preset demos) ;;
+  default) learner=() ;; *) echo "error: LEARNER is paper, demos or default" >&2; exit 2 ;; esac
+task=${TASK:-reach}
+case $task in reach|grasp) ;; *) echo "error: TASK is reach or grasp" >&2; exit 2 ;; esac
 evals=${EVAL:-50}
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
 source scripts/mpi-launch.sh
 log="$out.log"
 t0=$(date +%s.%N)
-"${launch[@]}" --mca orte_abort_on_non_zero_status 0 -np 3 "$bin" train --distributed --task reach \
+"${launch[@]}" --mca orte_abort_on_non_zero_status 0 -np 3 "$bin" train --distributed --task "$task" \
   "${learner[@]}" --checkpoint-every 2000 --select-best-episodes 0 --final-eval-episodes "$evals" \
   --seeds 0 --quiet --rank-timeout 5 --transitions "$budget" --out "$out" >"$log" 2>&1 &
 job=$!
