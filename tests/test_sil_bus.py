@@ -127,7 +127,12 @@ def test_frames_written_together_leave_lowest_identifier_first_a_frame_apart(sim
         s.settle(rx)
         raw = s.raw()
         raw.sendall(b"< open vcan0 >< rawmode >")
-        time.sleep(0.1)
+        # Both answered (the event to wait for, not a sleep): the frames below go out in raw mode.
+        answers = b""
+        while answers.count(b"< ok >") < 2:
+            chunk = raw.recv(4096)
+            assert chunk, "the bus closed the connection"
+            answers += chunk
         raw.sendall(b"".join(f"< send {i:03X} 8 {i & 0xFF:X} 1 2 3 4 5 6 7 >".encode() for i in (0x300, 0x100, 0x200)))
         got = [m for _, m in collect(rx, 1.0) if m.arbitration_id in (0x100, 0x200, 0x300)]
         assert len(got) == 3, got

@@ -1,6 +1,7 @@
 """A closed loop driven from Python: Python plays the plant (synthetic observations at 20 Hz,
 integrating the commanded velocities), the controller node answers every observation over the bus.
-And the Rust lockstep run (`hil-sim run`) is deterministic."""
+And the Rust lockstep run (`hil-sim run`) is deterministic. Nothing here is timed: each step waits
+for its answer (the latency is measured by the benchmarks, docs/benchmarks.md)."""
 import math
 import subprocess
 import time
@@ -16,7 +17,6 @@ def test_closed_loop_episode_from_python(operational):
     answered = 0
     steps = 40
     next_t = time.monotonic()
-    latencies = []
     for step in range(steps):
         next_t += PERIOD
         obs = observation(step)
@@ -24,29 +24,26 @@ def test_closed_loop_episode_from_python(operational):
         obs[0:6] = [math.sin(a) for a in q[:6]]
         obs[6:12] = [math.cos(a) for a in q[:6]]
         obs[12:15] = q[6:9]
-        t0 = time.monotonic()
         tx.send(bus, obs)
         sample = tx.sample
-        got = collect(bus, 0.045, lambda m: m.arbitration_id == ACTION_IDS[2])
+        # Event-driven: until the answer's last action frame (a generous bound, not a deadline).
+        got = collect(bus, 5.0, lambda m: m.arbitration_id == ACTION_IDS[2])
         actions = decode_action([m for _, m in got])
         if sample in actions:
             answered += 1
-            latencies.append(got[-1][0] - t0)
             a = actions[sample]
             for j, name in enumerate(JOINTS):
                 v = a[name]
                 assert math.isfinite(v) and abs(v) <= LIMITS[name] + 1e-3, (name, v)
                 q[j] = max(-3.0, min(3.0, q[j] + v * PERIOD))
         time.sleep(max(0.0, next_t - time.monotonic()))
-    # Every observation is answered; the machine is shared, so allow a late answer or two to
-    # miss this loop's 45 ms window (the bench measures latency properly).
-    assert answered >= steps - 2
+    # Every observation is answered, with its own sample.
+    assert answered == steps
     assert any(abs(x) > 1e-3 for x in q), "the policy never moved the arm"
     d = s.diag()
     assert d["state"] == "Operational"
     assert int(d["evaluations"]) == steps
     assert int(d["e2e_errors"]) == 0 and int(d["wrong_sequence"]) == 0
-    assert sorted(latencies)[len(latencies) // 2] < 0.02
 
 
 def test_lockstep_run_is_deterministic(hil_sim, policies, tmp_path):
