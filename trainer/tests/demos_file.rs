@@ -211,3 +211,46 @@ fn close_bursts_hold_the_executed_fingers_closing_and_keep_the_labels() {
     let plain = record(scene(), &src, &clean, &|| {}).unwrap();
     assert_ne!(plain.rows, set.rows);
 }
+
+#[test]
+fn open_bursts_hold_the_executed_fingers_opening_and_mix_with_close_bursts() {
+    // Open bursts alone: runs of executed -1 on the fingers (the Markov teacher never opens all
+    // three fingers fully for 3 steps while approaching a Grasp brick), labels the teacher's.
+    let src = DemoSource::Markov(dex_trainer::env::MarkovDemonstrator::new(Task::Grasp));
+    let opening =
+        |r: &dex_trainer::files::demos::DemoRow| r.executed[6..].iter().all(|&a| a == -1.0);
+    let closing =
+        |r: &dex_trainer::files::demos::DemoRow| r.executed[6..].iter().all(|&a| a == 1.0);
+    let settings = RecordSettings {
+        episodes: 2,
+        open_bursts: 0.1,
+        keep: Keep::All,
+        ..RecordSettings::new(Task::Grasp)
+    };
+    let set = record(scene(), &src, &settings, &|| {}).unwrap();
+    let opened = set.rows.iter().filter(|r| opening(r)).count();
+    assert!(opened >= 3 * 5, "{opened} steps held opening");
+    assert!(
+        set.rows
+            .iter()
+            .any(|r| opening(r) && r.label[6..].iter().any(|&a| a > -0.5))
+    );
+    // Both kinds: both appear; with open bursts at zero no step is held opening.
+    let both = RecordSettings {
+        close_bursts: 0.05,
+        open_bursts: 0.05,
+        ..settings
+    };
+    let mixed = record(scene(), &src, &both, &|| {}).unwrap();
+    assert!(mixed.rows.iter().any(|r| opening(r)) && mixed.rows.iter().any(|r| closing(r)));
+    let close_only = RecordSettings {
+        close_bursts: 0.1,
+        open_bursts: 0.0,
+        ..settings
+    };
+    let a = record(scene(), &src, &close_only, &|| {}).unwrap();
+    assert!(!a.rows.iter().any(|r| opening(r)));
+    // The header keeps the setting.
+    let back = DemoSet::from_bytes(&set.to_bytes(), std::path::Path::new("x.dxdm")).unwrap();
+    assert_eq!(back.header.settings.open_bursts, 0.1);
+}

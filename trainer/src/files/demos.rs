@@ -206,6 +206,7 @@ pub fn record_with(
         // Its own stream, so recordings without bursts draw exactly what they drew before.
         let mut bursts = Rng::derive(seed, 0xB125);
         let mut burst_left = 0usize;
+        let mut burst_value = 1.0f32;
         let mut obs = env.reset(seed)?;
         demo.restart();
         if let (Some(policy), RecordMode::Takeover { max_step }) = (lead.as_mut(), settings.mode) {
@@ -239,14 +240,24 @@ pub fn record_with(
                 let n = if sd > 0.0 { noise.normal(0.0, sd) } else { 0.0 };
                 (base[j].clamp(-1.0, 1.0) + n).clamp(-1.0, 1.0)
             });
-            if settings.close_bursts > 0.0 {
-                if burst_left == 0 && bursts.uniform_f64() < f64::from(settings.close_bursts) {
-                    let (lo, hi) = CLOSE_BURST_STEPS;
-                    burst_left = lo + bursts.below(hi - lo + 1);
+            let (close, open) = (
+                f64::from(settings.close_bursts),
+                f64::from(settings.open_bursts),
+            );
+            if close + open > 0.0 {
+                if burst_left == 0 {
+                    // One draw decides whether a burst starts and which (with open bursts off,
+                    // the draws of a close-burst recording are unchanged).
+                    let u = bursts.uniform_f64();
+                    if u < close + open {
+                        let (lo, hi) = CLOSE_BURST_STEPS;
+                        burst_left = lo + bursts.below(hi - lo + 1);
+                        burst_value = if u < close { 1.0 } else { -1.0 };
+                    }
                 }
                 if burst_left > 0 {
                     burst_left -= 1;
-                    executed[ARM_JOINTS..].fill(1.0);
+                    executed[ARM_JOINTS..].fill(burst_value);
                 }
             }
             let out = env.step(&executed)?;

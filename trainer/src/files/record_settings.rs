@@ -54,6 +54,13 @@ pub struct RecordSettings {
     /// closes short of the brick is in (docs/experiments.md, "How the Grasp clone fails").
     #[serde(default, skip_serializing_if = "is_zero")]
     pub close_bursts: f32,
+    /// Open bursts (0: none): as [`RecordSettings::close_bursts`] with the executed finger
+    /// actions held fully opening (-1). Near brick 2 they undo a tucked finger, the state from
+    /// which a teacher that tucks first ([`crate::env::MarkovDemonstrator::with_tuck_first`])
+    /// holds the hand up until it is tucked again. A burst is a close burst with probability
+    /// `close_bursts / (close_bursts + open_bursts)`.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub open_bursts: f32,
     /// Which episodes are stored.
     pub keep: Keep,
     /// Who drives the episodes (the demonstrator always labels).
@@ -82,6 +89,8 @@ struct RecordSettingsFile {
     finger_noise: f32,
     #[serde(default)]
     close_bursts: f32,
+    #[serde(default)]
+    open_bursts: f32,
     #[serde(default)]
     keep: Option<Keep>,
     #[serde(default)]
@@ -121,6 +130,7 @@ impl TryFrom<RecordSettingsFile> for RecordSettings {
             arm_noise: f.arm_noise,
             finger_noise: f.finger_noise,
             close_bursts: f.close_bursts,
+            open_bursts: f.open_bursts,
             keep,
             mode: f.mode,
             reward: f.reward,
@@ -138,6 +148,7 @@ impl RecordSettings {
             arm_noise: 0.0,
             finger_noise: 0.0,
             close_bursts: 0.0,
+            open_bursts: 0.0,
             keep: Keep::Successes,
             mode: RecordMode::Demonstrator,
             reward: None,
@@ -164,11 +175,12 @@ impl RecordSettings {
                 )));
             }
         }
-        if !(0.0..=0.5).contains(&self.close_bursts) {
-            return Err(DemoError::Settings(format!(
-                "close bursts {} is outside [0, 0.5] (a probability per step)",
-                self.close_bursts
-            )));
+        for (name, p) in [("close", self.close_bursts), ("open", self.open_bursts)] {
+            if !(0.0..=0.5).contains(&p) {
+                return Err(DemoError::Settings(format!(
+                    "{name} bursts {p} is outside [0, 0.5] (a probability per step)"
+                )));
+            }
         }
         Ok(())
     }
@@ -249,7 +261,7 @@ mod tests {
     #[test]
     fn a_file_without_bursts_writes_no_burst_field() {
         let v = json_of(&RecordSettings::new(Task::Grasp));
-        assert!(v.get("close_bursts").is_none());
+        assert!(v.get("close_bursts").is_none() && v.get("open_bursts").is_none());
         assert_eq!(v["keep"], "successes");
     }
 
@@ -258,6 +270,11 @@ mod tests {
         for p in [-0.1, 0.6, f32::NAN] {
             let s = RecordSettings {
                 close_bursts: p,
+                ..RecordSettings::new(Task::Grasp)
+            };
+            assert!(s.validate().is_err(), "{p}");
+            let s = RecordSettings {
+                open_bursts: p,
                 ..RecordSettings::new(Task::Grasp)
             };
             assert!(s.validate().is_err(), "{p}");

@@ -66,6 +66,8 @@ pub struct ImitationConfig {
     /// Close bursts in the DART episodes ([`RecordSettings::close_bursts`]: the probability per
     /// step of holding the fingers closing for 3-8 steps; 0: none).
     pub close_bursts: f32,
+    /// Open bursts in the DART episodes ([`RecordSettings::open_bursts`]; 0: none).
+    pub open_bursts: f32,
     /// Behaviour cloning settings (its seed is the run's seed).
     pub bc: BcConfig,
     /// Selection starts per round (0: keep the last round).
@@ -96,6 +98,7 @@ impl Default for ImitationConfig {
             arm_noise: 0.1,
             finger_noise: 0.05,
             close_bursts: 0.0,
+            open_bursts: 0.0,
             tuck_first: false,
             bc: BcConfig {
                 steps: 30_000,
@@ -190,6 +193,7 @@ impl ImitationConfig {
             arm_noise: 0.0,
             finger_noise: 0.0,
             close_bursts: 0.0,
+            open_bursts: 0.0,
             keep: if self.dagger_failures_only {
                 Keep::Failures
             } else {
@@ -213,6 +217,7 @@ impl ImitationConfig {
             arm_noise: self.arm_noise,
             finger_noise: self.finger_noise,
             close_bursts: self.close_bursts,
+            open_bursts: self.open_bursts,
             ..clean
         };
         let in_hand = RecordSettings {

@@ -46,6 +46,10 @@ pub struct DemosArgs {
     /// closing for 3-8 steps (labels stay the demonstrator's; 0: none, at most 0.5).
     #[arg(long, default_value_t = 0.0)]
     close_bursts: f32,
+    /// Open bursts: the probability per step of holding the executed finger actions fully
+    /// opening for 3-8 steps (0: none, at most 0.5).
+    #[arg(long, default_value_t = 0.0)]
+    open_bursts: f32,
     /// Demonstrator takeover: this policy drives each episode for a random number of steps (up to
     /// --takeover-max-step), then the demonstrator takes over; only its part is recorded.
     #[arg(long, conflicts_with = "dagger")]
@@ -132,6 +136,7 @@ pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
         arm_noise: a.arm_noise,
         finger_noise: a.finger_noise,
         close_bursts: a.close_bursts,
+        open_bursts: a.open_bursts,
         keep: if a.failures_only {
             Keep::Failures
         } else if a.keep_failures {

@@ -41,6 +41,10 @@ pub struct ImitateArgs {
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
     close_bursts: Option<f32>,
+    /// Open bursts in the DART episodes: the probability per step of holding the executed finger
+    /// actions fully opening for 3-8 steps (0: none, at most 0.5).
+    #[arg(long)]
+    open_bursts: Option<f32>,
     /// DAgger rounds after round 0.
     #[arg(long)]
     rounds: Option<u32>,
@@ -109,6 +113,9 @@ impl ImitateArgs {
         }
         if let Some(v) = self.close_bursts {
             c.close_bursts = v;
+        }
+        if let Some(v) = self.open_bursts {
+            c.open_bursts = v;
         }
         if self.tuck_first {
             c.tuck_first = true;
