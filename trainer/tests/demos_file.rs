@@ -242,14 +242,14 @@ fn open_bursts_hold_the_executed_fingers_opening_and_mix_with_close_bursts() {
         ..settings
     };
     let mixed = record(scene(), &src, &both, &|| {}).unwrap();
-    assert!(mixed.rows.iter().any(|r| opening(r)) && mixed.rows.iter().any(|r| closing(r)));
+    assert!(mixed.rows.iter().any(opening) && mixed.rows.iter().any(closing));
     let close_only = RecordSettings {
         close_bursts: 0.1,
         open_bursts: 0.0,
         ..settings
     };
     let a = record(scene(), &src, &close_only, &|| {}).unwrap();
-    assert!(!a.rows.iter().any(|r| opening(r)));
+    assert!(!a.rows.iter().any(opening));
     // The header keeps the setting.
     let back = DemoSet::from_bytes(&set.to_bytes(), std::path::Path::new("x.dxdm")).unwrap();
     assert_eq!(back.header.settings.open_bursts, 0.1);
