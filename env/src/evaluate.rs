@@ -156,20 +156,7 @@ pub fn run_episode_recorded(
     let mut obs = env.reset(seed)?;
     let mut total = 0.0f64;
     loop {
-        let input: [f32; OBS_DIM] = if can_quantisation {
-            core::array::from_fn(|i| quantise_observation(i, obs[i]))
-        } else {
-            obs
-        };
-        let mut physical = [0.0f32; ACT_DIM];
-        let mut buf = [0.0f32; INPUT_MAX];
-        mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
-        if let Some(e) = envelope.as_deref_mut() {
-            e.apply(&input, &mut physical);
-        }
-        if can_quantisation {
-            physical = physical.map(quantise_action);
-        }
+        let physical = controller_command(mlp, &obs, can_quantisation, envelope.as_deref_mut())?;
         if let Some(r) = record.as_deref_mut() {
             r.push(physical);
         }
@@ -180,6 +167,34 @@ pub fn run_episode_recorded(
             return Ok((total, out.success));
         }
     }
+}
+
+/// The physical command the plant receives for observation `obs`, as the controller node computes
+/// it: the observation as it arrives over CAN (quantised when `can_quantisation`), the task
+/// features after it for a policy that takes them, the policy, the safety envelope when given,
+/// and the command as it arrives back over CAN. Every episode loop that runs a policy file as the
+/// controller would (`trainer eval`, the diagnostics examples, tests) steps through this.
+pub fn controller_command<const W: usize>(
+    mlp: &mut Mlp<'_, W>,
+    obs: &[f32; OBS_DIM],
+    can_quantisation: bool,
+    envelope: Option<&mut Envelope>,
+) -> Result<[f32; ACT_DIM], EvalError> {
+    let input: [f32; OBS_DIM] = if can_quantisation {
+        core::array::from_fn(|i| quantise_observation(i, obs[i]))
+    } else {
+        *obs
+    };
+    let mut physical = [0.0f32; ACT_DIM];
+    let mut buf = [0.0f32; INPUT_MAX];
+    mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
+    if let Some(e) = envelope {
+        e.apply(&input, &mut physical);
+    }
+    if can_quantisation {
+        physical = physical.map(quantise_action);
+    }
+    Ok(physical)
 }
 
 /// The envelope `trainer eval --envelope` applies: the controller's default.

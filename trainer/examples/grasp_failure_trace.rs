@@ -16,14 +16,11 @@
 use anyhow::Context;
 use clap::Parser;
 use dex_runtime::Mlp;
-use dex_runtime::can::messages::{quantise_action, quantise_observation};
-use dex_runtime::features::{INPUT_MAX, policy_input};
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::kinematics::pinch_pose;
 use dex_trainer::env::scene::{ARM_JOINTS, GRASP_DEPTH};
 use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, MarkovDemonstrator, Scene, Task};
-use dex_trainer::evaluate::physical_to_env_action;
+use dex_trainer::evaluate::{controller_command, physical_to_env_action};
 use mujoco_rs::prelude::MjtObjBase;
 use std::f64::consts::PI;
 
@@ -128,11 +125,8 @@ fn main() -> anyhow::Result<()> {
         let phase = teacher.phase(&env);
         let label = teacher.act(&env);
 
-        let input: [f32; OBS_DIM] = core::array::from_fn(|k| quantise_observation(k, obs[k]));
-        let mut physical = [0.0f32; ACT_DIM];
-        let mut buf = [0.0f32; INPUT_MAX];
-        mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
-        let policy_action = physical_to_env_action(&physical.map(quantise_action));
+        let policy_action =
+            physical_to_env_action(&controller_command(&mut mlp, &obs, true, None)?);
         let t = env.steps_taken();
         let action = if args.handover.is_some_and(|h| t >= h) {
             label

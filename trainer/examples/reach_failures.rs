@@ -10,11 +10,10 @@
 use anyhow::Context;
 use clap::Parser;
 use dex_runtime::Mlp;
-use dex_runtime::can::messages::{quantise_action, quantise_observation};
-use dex_runtime::interface::{ACT_DIM, OBS_DIM, OBSERVATION_FIELDS};
+use dex_runtime::interface::OBSERVATION_FIELDS;
 use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, Scene, Task};
-use dex_trainer::evaluate::physical_to_env_action;
+use dex_trainer::evaluate::{controller_command, physical_to_env_action};
 
 #[derive(Parser)]
 struct Args {
@@ -52,10 +51,8 @@ fn main() -> anyhow::Result<()> {
         let mut first_in = None;
         let mut step = 0u32;
         let (success, distance) = loop {
-            let input: [f32; OBS_DIM] = core::array::from_fn(|k| quantise_observation(k, obs[k]));
-            let mut physical = [0.0f32; ACT_DIM];
-            mlp.act(&input, &mut physical)?;
-            let out = env.step(&physical_to_env_action(&physical.map(quantise_action)))?;
+            let command = controller_command(&mut mlp, &obs, true, None)?;
+            let out = env.step(&physical_to_env_action(&command))?;
             step += 1;
             if out.success && first_in.is_none() {
                 first_in = Some(step);

@@ -12,12 +12,9 @@
 use anyhow::Context;
 use clap::Parser;
 use dex_runtime::Mlp;
-use dex_runtime::can::messages::{quantise_action, quantise_observation};
-use dex_runtime::features::{INPUT_MAX, policy_input};
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, Scene, Task};
-use dex_trainer::evaluate::physical_to_env_action;
+use dex_trainer::evaluate::{controller_command, physical_to_env_action};
 
 #[derive(Parser)]
 struct Args {
@@ -61,11 +58,7 @@ fn main() -> anyhow::Result<()> {
         let mut wrist_travel = 0.0f32;
         let mut last_wrist = obs[5].atan2(obs[11]);
         let out = loop {
-            let input: [f32; OBS_DIM] = core::array::from_fn(|k| quantise_observation(k, obs[k]));
-            let mut physical = [0.0f32; ACT_DIM];
-            let mut buf = [0.0f32; INPUT_MAX];
-            mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
-            let action = physical_to_env_action(&physical.map(quantise_action));
+            let action = physical_to_env_action(&controller_command(&mut mlp, &obs, true, None)?);
             let out = env.step(&action)?;
             let p = out.predicates;
             if args.trace == Some(i) {

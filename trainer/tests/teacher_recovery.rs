@@ -8,12 +8,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use dex_runtime::Mlp;
-use dex_runtime::can::messages::{quantise_action, quantise_observation};
-use dex_runtime::features::{INPUT_MAX, policy_input};
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_trainer::env::seeds::{EVAL_SEED, episode_seed};
 use dex_trainer::env::{EnvConfig, JacoEnv, MarkovDemonstrator, Task};
-use dex_trainer::evaluate::physical_to_env_action;
+use dex_trainer::evaluate::{controller_command, physical_to_env_action};
 
 mod common;
 use common::scene;
@@ -42,12 +39,7 @@ fn takeover(mlp: &mut Mlp<'_, 1024>, e: u64, teacher: MarkovDemonstrator) -> (bo
         let action = if handed {
             teacher.act(&env)
         } else {
-            let input: [f32; OBS_DIM] = core::array::from_fn(|k| quantise_observation(k, obs[k]));
-            let mut physical = [0.0f32; ACT_DIM];
-            let mut buf = [0.0f32; INPUT_MAX];
-            mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)
-                .unwrap();
-            physical_to_env_action(&physical.map(quantise_action))
+            physical_to_env_action(&controller_command(mlp, &obs, true, None).unwrap())
         };
         let out = env.step(&action).unwrap();
         obs = out.observation;
