@@ -40,7 +40,11 @@ pub fn clone_rows(sets: &[DemoSet], task: Task) -> Result<(Vec<f32>, Vec<f32>), 
     clone_rows_repeated(&once, task)
 }
 
-/// [`clone_rows`] with each set's rows `count` times (oversampling a set without copying it).
+/// [`clone_rows`] with each set's rows `count` times: the rows are copied `count` times into the
+/// flat matrices (and their task features computed as often), which gives the uniform sampler
+/// the weights an oversampled set needs. At the counts `trainer imitate` uses (a DAgger round's
+/// 10-20 failed episodes, K = 5) that is a few percent of the data; a weighted sampler would avoid
+/// the copies.
 pub fn clone_rows_repeated(
     sets: &[(&DemoSet, u32)],
     task: Task,

@@ -63,35 +63,31 @@ pub(super) fn screen(
             return Ok(kept);
         }
     }
-    if let Some(shared) = sibling_screening(dir, &sha256, s.start.failed_starts) {
-        let screening = Screening {
+    let screening = match sibling_screening(dir, &sha256, s.start.failed_starts) {
+        Some(shared) => Screening {
             policy: init.to_path_buf(),
             ..shared
-        };
-        std::fs::create_dir_all(dir).map_err(|source| TrainRunError::Create {
-            path: dir.to_path_buf(),
-            source,
-        })?;
-        write_file(&path, serde_json::to_string_pretty(&screening)?.as_bytes())?;
-        return Ok(screening);
-    }
-    let settings = eval_settings(s, s.start.failed_starts, SCREEN_SEED);
-    on_event(TrainEvent::ScreeningStarted {
-        seed,
-        starts: s.start.failed_starts,
-    });
-    let outcomes = episode_outcomes(&file, scene, &settings, &|| {})?;
-    let failed = (0u64..)
-        .zip(&outcomes)
-        .filter(|(_, (_, success))| !success)
-        .map(|(i, _)| episode_seed(SCREEN_SEED, i))
-        .collect();
-    let screening = Screening {
-        policy: init.to_path_buf(),
-        sha256,
-        start_seed: SCREEN_SEED,
-        screened: s.start.failed_starts,
-        failed,
+        },
+        None => {
+            let settings = eval_settings(s, s.start.failed_starts, SCREEN_SEED);
+            on_event(TrainEvent::ScreeningStarted {
+                seed,
+                starts: s.start.failed_starts,
+            });
+            let outcomes = episode_outcomes(&file, scene, &settings, &|| {})?;
+            let failed = (0u64..)
+                .zip(&outcomes)
+                .filter(|(_, (_, success))| !success)
+                .map(|(i, _)| episode_seed(SCREEN_SEED, i))
+                .collect();
+            Screening {
+                policy: init.to_path_buf(),
+                sha256,
+                start_seed: SCREEN_SEED,
+                screened: s.start.failed_starts,
+                failed,
+            }
+        }
     };
     std::fs::create_dir_all(dir).map_err(|source| TrainRunError::Create {
         path: dir.to_path_buf(),
