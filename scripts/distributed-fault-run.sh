@@ -11,7 +11,8 @@
 # the default, or grasp); LEARNER: `paper` (default: the paper's learner, --preset paper),
 # `demos` (the learner from demonstrations, --preset demos) or `default` (the task's default
 # pipeline: for Reach the learner from demonstrations that reaches 100%); EVAL (final evaluation
-# episodes, default 50).
+# episodes, default 50); RESPAWN (seconds: `--respawn-after`, rank 0 replaces a rank lost that long
+# by a new one; off when unset).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 mode=${1:?MODE: kill, stop or cut}
@@ -26,6 +27,8 @@ case ${LEARNER:-paper} in paper) learner=(--preset paper) ;; demos) learner=(--p
 task=${TASK:-reach}
 case $task in reach|grasp) ;; *) echo "error: TASK is reach or grasp" >&2; exit 2 ;; esac
 evals=${EVAL:-50}
+respawn=()
+[ -n "${RESPAWN:-}" ] && respawn=(--respawn-after "$RESPAWN")
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
 source scripts/mpi-launch.sh
@@ -33,7 +36,7 @@ log="$out.log"
 t0=$(date +%s.%N)
 "${launch[@]}" --mca orte_abort_on_non_zero_status 0 -np 3 "$bin" train --distributed --task "$task" \
   "${learner[@]}" --checkpoint-every 2000 --select-best-episodes 0 --final-eval-episodes "$evals" \
-  --seeds 0 --quiet --rank-timeout 5 --transitions "$budget" --out "$out" >"$log" 2>&1 &
+  --seeds 0 --quiet --rank-timeout 5 "${respawn[@]}" --transitions "$budget" --out "$out" >"$log" 2>&1 &
 job=$!
 stamp() { printf '%7.1f s  %s\n' "$(echo "$(date +%s.%N) - $t0" | bc)" "$*"; }
 while [ ! -e "$out/seed-0/checkpoint.bin" ]; do
@@ -64,8 +67,9 @@ import json, sys
 d = sys.argv[1]
 s = json.load(open(f"{d}/distributed.json"))
 f = json.load(open(f"{d}/final_eval.json"))
-print(f"distributed.json: exchanges {s['exchanges']}, lost {s['lost']}, readmitted {s['readmitted']}; "
-      f"changes {[(c['rank'], c['kind'], round(c['silent_s'], 1), c['transitions']) for c in s['rank_changes']]}")
+print(f"distributed.json: exchanges {s['exchanges']}, lost {s['lost']}, readmitted {s['readmitted']}, "
+      f"replaced {s.get('replaced', 0)}; changes "
+      f"{[(c['rank'], c['kind'], round(c['silent_s'], 1), c['transitions'], c.get('by')) for c in s['rank_changes']]}")
 print(f"final evaluation: {f['transitions']} transitions, success {f['success_rate']:.2f} "
       f"over {f.get('episodes', '?')} episodes")
 PY

@@ -2,7 +2,9 @@
 //! MuJoCo): three ranks learn the point-mass task and Reach; a worker rank killed (SIGKILL)
 //! mid-run is left behind and the run finishes with the other; a worker rank stopped (SIGSTOP)
 //! is lost, then re-admitted when it goes on (SIGCONT); the loss of the only worker rank ends the
-//! run with a fresh checkpoint and an error naming it, and the run resumes from it to the end.
+//! run with a fresh checkpoint and an error naming it, and the run resumes from it to the end;
+//! with `--respawn-after`, a killed worker rank is replaced by a new one (`MPI_Comm_spawn`) that
+//! takes part in the run to its end.
 //! And the same loss across three hosts made of network namespaces (scripts/cluster-sim.sh),
 //! skipped with a message where namespaces cannot be made.
 
@@ -402,6 +404,60 @@ fn killed_worker_rank_is_left_behind_and_the_run_finishes() {
     assert!(log.contains("the run is complete"), "{log}");
     let d = finished_after_loss(&out, budget, &log);
     assert_eq!(d["readmitted"], 0, "{d}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// `--respawn-after 1`: rank 2 killed is lost after the 3 s timeout, rank 0 starts a
+/// replacement (rank 3, by `MPI_Comm_spawn`) a second later, which gets the state, exchanges and
+/// stays to the end; rank 0 disconnects from it and ends the job. The budget leaves rank 1 alone
+/// more than twice the time the loss and the replacement take at its fastest rate here.
+#[test]
+fn killed_worker_rank_is_replaced_and_the_run_finishes() {
+    let _one = one_job();
+    let out = tmp("respawn");
+    let out_s = out.to_str().unwrap().to_string();
+    let budget = 12000;
+    let b = budget.to_string();
+    let mut args = fault_args(&out_s, &b);
+    args.extend(["--respawn-after", "1"]);
+    let mut job = Drained::spawn(mpirun(3, true, &args));
+    first_checkpoint(&mut job, &out.join("seed-0/checkpoint.bin"));
+    let pid = rank_pid(2, &out_s).expect("rank 2's process");
+    signal(pid, "-KILL");
+    assert!(
+        job.wait_for(
+            "worker rank 2 replaced by a new worker rank 3",
+            Duration::from_secs(60)
+        ),
+        "no replacement logged: {}",
+        job.log()
+    );
+    let status = job.wait(Duration::from_secs(180));
+    let log = job.log();
+    let status = status.unwrap_or_else(|| panic!("the run did not end: {log}"));
+    eprintln!("{log}\nrespawn: {status}");
+    assert!(log.contains("worker rank 2 lost"), "{log}");
+    assert!(
+        log.contains("rank 3: started by rank 0 as a replacement worker rank"),
+        "{log}"
+    );
+    assert!(log.contains("1 replacement ranks were started"), "{log}");
+    // The replacement took part: its counters line, written before it disconnected.
+    let l = log
+        .lines()
+        .find(|l| l.starts_with("rank 3: ") && l.contains("exchanges"))
+        .unwrap_or_else(|| panic!("rank 3's counters: {log}"));
+    assert!(!l.contains(" 0 exchanges"), "{l}");
+    assert!(l.contains(" 0 refused"), "{l}");
+    let d = finished_after_loss(&out, budget, &log);
+    assert_eq!(d["replaced"], 1, "{d}");
+    let changes = d["rank_changes"].as_array().unwrap();
+    assert!(
+        changes
+            .iter()
+            .any(|c| c["rank"] == 2 && c["kind"] == "replaced" && c["by"] == 3),
+        "{d}"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -36,6 +36,7 @@ pub(crate) struct PointMassArgs {
 fn config(
     exchange_every: Option<u64>,
     rank_timeout: Option<f64>,
+    respawn_after: Option<f64>,
 ) -> anyhow::Result<DistributedConfig> {
     let mut c = DistributedConfig::default();
     if let Some(k) = exchange_every {
@@ -44,6 +45,12 @@ fn config(
     if let Some(t) = rank_timeout {
         c.rank_timeout = Duration::try_from_secs_f64(t)
             .map_err(|_| anyhow::anyhow!("--rank-timeout must be a number of seconds"))?;
+    }
+    if let Some(t) = respawn_after {
+        c.respawn_after = Some(
+            Duration::try_from_secs_f64(t)
+                .map_err(|_| anyhow::anyhow!("--respawn-after must be a number of seconds"))?,
+        );
     }
     c.validate()?;
     Ok(c)
@@ -60,14 +67,14 @@ fn no_mpi() -> anyhow::Result<()> {
 /// `trainer train --distributed`.
 #[cfg(not(feature = "mpi"))]
 pub(crate) fn train(a: &TrainArgs) -> anyhow::Result<()> {
-    config(a.exchange_every, a.rank_timeout)?;
+    config(a.exchange_every, a.rank_timeout, a.respawn_after)?;
     no_mpi()
 }
 
 /// `trainer distributed-point-mass`.
 #[cfg(not(feature = "mpi"))]
 pub(crate) fn point_mass(a: &PointMassArgs) -> anyhow::Result<()> {
-    config(a.exchange_every, a.rank_timeout)?;
+    config(a.exchange_every, a.rank_timeout, None)?;
     no_mpi()
 }
 
@@ -125,7 +132,7 @@ mod with_mpi {
     }
 
     pub(crate) fn train(a: &TrainArgs) -> anyhow::Result<()> {
-        let cfg = config(a.exchange_every, a.rank_timeout)?;
+        let cfg = config(a.exchange_every, a.rank_timeout, a.respawn_after)?;
         let mut transport = MpiTransport::init()?;
         let stop = stop_flag()?;
         let mut s = train_settings::load(a.config.as_deref())?;
@@ -170,18 +177,33 @@ mod with_mpi {
                 // The other ranks would wait for rank 0 forever: end the job.
                 transport.abort(FAILED);
             }
-            if !lost.is_empty() {
+            if stats.replaced > 0 {
+                // Replacements disconnect from rank 0 once they took the stop; an MPI_Abort while
+                // one waits in its disconnect left mpirun hanging (measured), so rank 0 disconnects
+                // from each present one first (a lost one is left alone: it would wait for ever).
+                transport.disconnect_replacements(&lost);
+            }
+            if !lost.is_empty() || stats.replaced > 0 {
                 // The run is complete and written. A rank still lost may be stopped or cut off
                 // (it would hold MPI_Finalize, and mpirun, for ever) or dead (under
                 // `orte_abort_on_non_zero_status 0` mpirun then never ends either): end the job.
                 // mpirun exits 0 for a stopped rank, 137 when one was killed.
+                let replaced = match stats.replaced {
+                    0 => String::new(),
+                    n => format!(", {n} replacement ranks were started"),
+                };
                 line_to_stderr(&format!(
-                    "rank 0: the run is complete; worker ranks {lost:?} are still lost: ending the \
-                     job (MPI_Abort with code 0)"
+                    "rank 0: the run is complete; worker ranks {lost:?} are still lost{replaced}: \
+                     ending the job (MPI_Abort with code 0)"
                 ));
                 transport.abort(0);
             }
         } else {
+            if transport.is_replacement() {
+                line_to_stderr(&format!(
+                    "rank {rank}: started by rank 0 as a replacement worker rank (MPI_Comm_spawn)"
+                ));
+            }
             let (stats, progress) = plan.train_worker_rank(&scene, &mut transport, cfg, &stop)?;
             report(rank, t0.elapsed().as_secs_f64(), &progress, &stats);
         }
@@ -189,7 +211,7 @@ mod with_mpi {
     }
 
     pub(crate) fn point_mass(a: &PointMassArgs) -> anyhow::Result<()> {
-        let cfg = config(a.exchange_every, a.rank_timeout)?;
+        let cfg = config(a.exchange_every, a.rank_timeout, None)?;
         let mut transport = MpiTransport::init()?;
         let rank = transport.rank();
         let t0 = Instant::now();

@@ -179,6 +179,11 @@ struct TrainArgs {
     /// checkpoint and fails naming it.
     #[arg(long, requires = "distributed")]
     rank_timeout: Option<f64>,
+    /// Distributed: rank 0 starts a replacement (MPI_Comm_spawn of this same command) for a
+    /// worker rank lost for this many seconds more (off; needs a free slot: mpirun
+    /// --oversubscribe or more slots than ranks; docs/distributed.md).
+    #[arg(long, requires = "distributed")]
+    respawn_after: Option<f64>,
     /// Start from a named configuration (`paper`: plain DDPG, none of the components below;
     /// `demos`: the learner from demonstrations, Reach's default; `finetune`: the clone stage and
     /// the fine-tune that keeps the clone, the default of Grasp, StackInHand and Stack without

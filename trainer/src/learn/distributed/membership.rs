@@ -1,6 +1,7 @@
 //! Which worker ranks the parameter server counts as present: a rank silent for the rank timeout
-//! is lost (the run goes on with the others), and a lost rank that is heard from again is
-//! re-admitted. Each change is recorded with the wall-clock time and the run's transition count,
+//! is lost (the run goes on with the others), a lost rank that is heard from again is
+//! re-admitted, and a rank lost for long enough may be replaced by a newly started one (which
+//! then counts as a rank of its own, the next number after every rank so far). Each change is recorded with the wall-clock time and the run's transition count,
 //! for the log and the run folder's `distributed.json` (docs/distributed.md, "Faults").
 
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -13,10 +14,14 @@ pub enum RankChangeKind {
     Lost,
     /// A lost rank was heard from again and gets the server's state.
     Readmitted,
+    /// A new worker rank ([`RankChange::by`]) was started in place of the lost rank.
+    Replaced,
+    /// Starting a replacement for the lost rank failed; the run goes on without one.
+    ReplacementFailed,
 }
 
 /// One change of a worker rank's membership.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RankChange {
     /// The worker rank.
     pub rank: usize,
@@ -28,6 +33,12 @@ pub struct RankChange {
     pub silent_s: f64,
     /// The run's transitions (applied pushes) at that moment.
     pub transitions: u64,
+    /// The replacement's rank ([`RankChangeKind::Replaced`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub by: Option<usize>,
+    /// Why no replacement could be started ([`RankChangeKind::ReplacementFailed`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
 }
 
 impl std::fmt::Display for RankChange {
@@ -44,6 +55,26 @@ impl std::fmt::Display for RankChange {
                 "worker rank {} re-admitted (away {:.1} s) at unix {:.3}, {} transitions",
                 self.rank, self.silent_s, self.unix_s, self.transitions
             ),
+            RankChangeKind::Replaced => write!(
+                f,
+                "worker rank {} replaced by a new worker rank {} (lost {:.1} s) at unix {:.3}, {} \
+                 transitions",
+                self.rank,
+                self.by.map_or_else(|| "?".to_string(), |b| b.to_string()),
+                self.silent_s,
+                self.unix_s,
+                self.transitions
+            ),
+            RankChangeKind::ReplacementFailed => write!(
+                f,
+                "worker rank {}: no replacement could be started (lost {:.1} s) at unix {:.3}, {} \
+                 transitions: going on without it ({})",
+                self.rank,
+                self.silent_s,
+                self.unix_s,
+                self.transitions,
+                self.why.as_deref().unwrap_or("no reason given")
+            ),
         }
     }
 }
@@ -53,6 +84,8 @@ impl std::fmt::Display for RankChange {
 pub struct Membership {
     /// Per rank (index 0, the server, never lost): the serve-clock time it was lost at.
     lost_at: Vec<Option<Duration>>,
+    /// Per rank: a replacement was tried for it (once per rank, whatever the outcome).
+    replaced: Vec<bool>,
     changes: Vec<RankChange>,
 }
 
@@ -67,7 +100,64 @@ impl Membership {
     pub fn new(ranks: usize) -> Self {
         Membership {
             lost_at: vec![None; ranks],
+            replaced: vec![false; ranks],
             changes: Vec::new(),
+        }
+    }
+
+    /// Counts one more rank (a replacement, numbered after every rank so far), present; returns
+    /// its number.
+    pub fn add_rank(&mut self) -> usize {
+        self.lost_at.push(None);
+        self.replaced.push(false);
+        self.lost_at.len() - 1
+    }
+
+    /// Number of ranks counted (the server and every worker rank so far, lost or not).
+    pub fn ranks(&self) -> usize {
+        self.lost_at.len()
+    }
+
+    /// How long `rank` has been lost at serve-clock `now` (None when it is present).
+    pub fn lost_for(&self, rank: usize, now: Duration) -> Option<Duration> {
+        let at = (*self.lost_at.get(rank)?)?;
+        Some(now.saturating_sub(at))
+    }
+
+    /// Whether a replacement was tried for `rank`.
+    pub fn was_replaced(&self, rank: usize) -> bool {
+        self.replaced.get(rank).copied().unwrap_or(false)
+    }
+
+    /// Records the replacement of the lost `rank` by rank `by` (`Err`: why it could not be
+    /// started) at serve-clock `now`; returns the change. The rank stays lost (it may still come
+    /// back: then it is re-admitted beside its replacement) and is never replaced again.
+    pub fn replace(
+        &mut self,
+        rank: usize,
+        by: Result<usize, String>,
+        now: Duration,
+        transitions: u64,
+    ) -> RankChange {
+        if let Some(r) = self.replaced.get_mut(rank) {
+            *r = true;
+        }
+        let lost = self.lost_for(rank, now).unwrap_or_default();
+        match by {
+            Ok(b) => self.record(
+                rank,
+                RankChangeKind::Replaced,
+                lost,
+                transitions,
+                (Some(b), None),
+            ),
+            Err(why) => self.record(
+                rank,
+                RankChangeKind::ReplacementFailed,
+                lost,
+                transitions,
+                (None, Some(why)),
+            ),
         }
     }
 
@@ -104,7 +194,13 @@ impl Membership {
         if let Some(l) = self.lost_at.get_mut(rank) {
             *l = Some(now);
         }
-        self.record(rank, RankChangeKind::Lost, silent, transitions)
+        self.record(
+            rank,
+            RankChangeKind::Lost,
+            silent,
+            transitions,
+            (None, None),
+        )
     }
 
     /// Marks the lost `rank` present again at serve-clock `now`; returns the change (None when it
@@ -116,6 +212,7 @@ impl Membership {
             RankChangeKind::Readmitted,
             now.saturating_sub(since),
             transitions,
+            (None, None),
         ))
     }
 
@@ -125,6 +222,7 @@ impl Membership {
         kind: RankChangeKind,
         silent: Duration,
         transitions: u64,
+        (by, why): (Option<usize>, Option<String>),
     ) -> RankChange {
         let c = RankChange {
             rank,
@@ -132,8 +230,10 @@ impl Membership {
             unix_s: unix_now(),
             silent_s: silent.as_secs_f64(),
             transitions,
+            by,
+            why,
         };
-        self.changes.push(c);
+        self.changes.push(c.clone());
         c
     }
 }
@@ -161,5 +261,38 @@ mod tests {
         assert_eq!(m.present(), 2);
         assert_eq!(m.changes().len(), 2);
         assert!(m.changes()[0].to_string().contains("worker rank 2 lost"));
+    }
+
+    #[test]
+    fn a_replaced_rank_stays_lost_and_its_replacement_counts() {
+        let mut m = Membership::new(3);
+        m.lose(2, Duration::from_secs(10), Duration::from_secs(3), 100);
+        assert_eq!(
+            m.lost_for(2, Duration::from_secs(12)),
+            Some(Duration::from_secs(2))
+        );
+        assert_eq!(m.lost_for(1, Duration::from_secs(12)), None);
+        assert!(!m.was_replaced(2));
+        let by = m.add_rank();
+        assert_eq!((by, m.ranks()), (3, 4));
+        let c = m.replace(2, Ok(by), Duration::from_secs(13), 150);
+        assert_eq!(
+            (c.rank, c.kind, c.by),
+            (2, RankChangeKind::Replaced, Some(3))
+        );
+        assert!((c.silent_s - 3.0).abs() < 1e-9, "{c:?}");
+        assert_eq!(m.changes().last(), Some(&c));
+        assert!(m.was_replaced(2) && m.is_lost(2) && !m.is_lost(3));
+        assert_eq!((m.present(), m.lost_now()), (2, vec![2]));
+        let line = c.to_string();
+        assert!(
+            line.contains("worker rank 2 replaced by a new worker rank 3"),
+            "{line}"
+        );
+        let f = m.replace(1, Err("no slot".into()), Duration::from_secs(14), 150);
+        assert_eq!((f.kind, f.by), (RankChangeKind::ReplacementFailed, None));
+        assert_eq!(m.changes().last(), Some(&f));
+        let line = f.to_string();
+        assert!(line.contains("no replacement could be started") && line.contains("(no slot)"));
     }
 }

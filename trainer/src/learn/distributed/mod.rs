@@ -48,6 +48,12 @@ pub struct DistributedConfig {
     /// on without it (and re-admits it when it is heard from again); when no worker rank is left
     /// it writes a checkpoint and fails naming the last.
     pub rank_timeout: Duration,
+    /// When set, a worker rank lost for this long is replaced: the server asks the transport to
+    /// start a new worker rank ([`Transport::replace`]; over MPI, `MPI_Comm_spawn`), which gets
+    /// the current state like a rank at the start. Off (`None`) by default: a replacement needs a
+    /// free slot in the MPI job (`mpirun --oversubscribe` or more slots than ranks), and a lost
+    /// rank that was only stopped or cut off comes back beside its replacement.
+    pub respawn_after: Option<Duration>,
 }
 
 impl Default for DistributedConfig {
@@ -55,6 +61,7 @@ impl Default for DistributedConfig {
         DistributedConfig {
             exchange_every: 10,
             rank_timeout: Duration::from_secs(60),
+            respawn_after: None,
         }
     }
 }
@@ -81,7 +88,8 @@ impl DistributedConfig {
 pub trait Transport {
     /// This process's rank (0 is the parameter server).
     fn rank(&self) -> usize;
-    /// Number of ranks.
+    /// Number of ranks: on the server, every rank so far (replacements included); on a
+    /// replacement worker rank, the ranks the run started with.
     fn size(&self) -> usize;
     /// A message that has arrived (from `from`, or any rank when `None`), without waiting:
     /// the sending rank and the bytes.
@@ -94,6 +102,15 @@ pub trait Transport {
     /// Moves the sends in flight on; returns how many sends to `to` are still in flight (the
     /// server times how long they take on its own clock).
     fn in_flight(&mut self, to: usize) -> usize;
+    /// Server: starts a new worker rank in place of the lost rank `lost` and returns its rank
+    /// (the next after every rank so far: [`Transport::size`] grows by one). The default cannot
+    /// start processes and fails with [`DistributedError::Spawn`].
+    fn replace(&mut self, lost: usize) -> Result<usize, DistributedError> {
+        let _ = lost;
+        Err(DistributedError::Spawn {
+            why: "this transport cannot start worker ranks".into(),
+        })
+    }
 }
 
 /// Why a distributed run failed.
@@ -138,6 +155,12 @@ pub enum DistributedError {
     /// MPI could not be initialised (or was already).
     #[error("MPI could not be initialised")]
     Init,
+    /// A replacement worker rank could not be started (the server goes on without it).
+    #[error("no replacement worker rank could be started: {why}")]
+    Spawn {
+        /// What the transport (MPI) said.
+        why: String,
+    },
     /// A setting of the distributed run is out of range or does not go with it.
     #[error("invalid distributed settings: {why}")]
     Config {
@@ -166,6 +189,9 @@ pub struct ExchangeStats {
     /// Server: lost worker ranks re-admitted. Worker: answers that came after more than the rank
     /// timeout, on which the rank dropped what it had learned since its push.
     pub readmitted: u64,
+    /// Server: replacement worker ranks started for lost ones
+    /// ([`DistributedConfig::respawn_after`]).
+    pub replaced: u64,
 }
 
 impl ExchangeStats {

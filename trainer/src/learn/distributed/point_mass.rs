@@ -239,7 +239,7 @@ mod tests {
         let mut seen = Vec::new();
         let mut server = Server::new(&mut server_side, cfg)
             .expect("server")
-            .on_rank_change(|c| seen.push(*c));
+            .on_rank_change(|c| seen.push(c.clone()));
         let t0 = std::time::Instant::now();
         let mut at_loss = None;
         loop {
@@ -289,6 +289,169 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    /// Rank 0's channels, able to start a worker rank: a thread on a new channel, numbered after
+    /// every rank so far (as `MPI_Comm_spawn` does for the MPI transport).
+    struct Respawning {
+        inner: Channels,
+        cfg: DistributedConfig,
+        started: Vec<std::thread::JoinHandle<RankResult>>,
+    }
+
+    type RankResult = Result<(Option<PointMassOutcome>, ExchangeStats, Progress), LearnError>;
+
+    impl Transport for Respawning {
+        fn rank(&self) -> usize {
+            self.inner.rank()
+        }
+        fn size(&self) -> usize {
+            self.inner.size()
+        }
+        fn try_recv(
+            &mut self,
+            from: Option<usize>,
+        ) -> Result<Option<(usize, Vec<u8>)>, DistributedError> {
+            self.inner.try_recv(from)
+        }
+        fn send(&mut self, to: usize, bytes: Vec<u8>) -> Result<(), DistributedError> {
+            self.inner.send(to, bytes)
+        }
+        fn in_flight(&mut self, to: usize) -> usize {
+            self.inner.in_flight(to)
+        }
+        fn replace(&mut self, _lost: usize) -> Result<usize, DistributedError> {
+            let (tx, from) = channel();
+            self.inner.to.push(tx);
+            let rank = self.inner.to.len() - 1;
+            let mut t = Channels {
+                rank,
+                to: self.inner.to.clone(),
+                from,
+                corrupt_every: 0,
+                sent: 0,
+            };
+            let cfg = self.cfg;
+            self.started.push(std::thread::spawn(move || {
+                run_point_mass(&mut t, cfg, point_mass_config(4, 1), u64::MAX, 0)
+            }));
+            Ok(rank)
+        }
+    }
+
+    #[test]
+    fn a_lost_rank_is_replaced_once_and_its_replacement_exchanges() {
+        let cfg = DistributedConfig {
+            rank_timeout: Duration::from_secs(1),
+            respawn_after: Some(Duration::from_millis(200)),
+            ..DistributedConfig::default()
+        };
+        let mut ranks = world(3, 0);
+        // Rank 2 never sends (killed before it began).
+        let _silent = ranks.pop().expect("rank 2");
+        let mut worker = ranks.pop().expect("rank 1");
+        let mut server_side = Respawning {
+            inner: ranks.pop().expect("rank 0"),
+            cfg,
+            started: Vec::new(),
+        };
+        let w1 = std::thread::spawn(move || {
+            run_point_mass(&mut worker, cfg, point_mass_config(4, 1), u64::MAX, 0)
+        });
+        let stop = AtomicBool::new(false);
+        let mut trainer = Trainer::new(point_mass_config(4, 1), 6, 2).expect("trainer");
+        let mut seen = Vec::new();
+        let mut server = Server::new(&mut server_side, cfg)
+            .expect("server")
+            .on_rank_change(|c| seen.push(c.clone()));
+        let t0 = std::time::Instant::now();
+        let mut at_replacement = None;
+        loop {
+            let until = trainer.progress().transitions + 50;
+            server
+                .serve(&mut trainer, until, &stop, &mut |_| {})
+                .expect("the run goes on");
+            let transitions = trainer.progress().transitions;
+            if at_replacement.is_none() && server.stats().replaced == 1 {
+                at_replacement = Some(transitions);
+            }
+            if at_replacement.is_some_and(|a| transitions > a + 300) {
+                break;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(90),
+                "{:?}",
+                server.membership().changes()
+            );
+        }
+        let m = server.membership();
+        // Rank 2 stays lost (and is replaced once); rank 3 counts.
+        assert_eq!((m.ranks(), m.present(), m.lost_now()), (4, 2, vec![2]));
+        assert_eq!(server.stats().replaced, 1);
+        server.finish().expect("finish");
+        drop(server);
+        let kinds: Vec<_> = seen.iter().map(|c| (c.rank, c.kind, c.by)).collect();
+        assert_eq!(
+            kinds,
+            [
+                (2, RankChangeKind::Lost, None),
+                (2, RankChangeKind::Replaced, Some(3))
+            ]
+        );
+        let _ = w1.join().expect("rank 1");
+        assert_eq!(server_side.started.len(), 1);
+        for h in server_side.started.drain(..) {
+            let (_, stats, _) = h.join().expect("rank 3").expect("rank 3 ends on the stop");
+            assert!(stats.exchanges > 0 && stats.refused == 0, "{stats:?}");
+        }
+    }
+
+    #[test]
+    fn a_replacement_that_cannot_start_is_recorded_and_the_run_goes_on() {
+        // The plain channels cannot start ranks (the trait's default `replace`).
+        let cfg = DistributedConfig {
+            rank_timeout: Duration::from_secs(1),
+            respawn_after: Some(Duration::ZERO),
+            ..DistributedConfig::default()
+        };
+        let mut ranks = world(3, 0);
+        let _silent = ranks.pop().expect("rank 2");
+        let mut worker = ranks.pop().expect("rank 1");
+        let mut server_side = ranks.pop().expect("rank 0");
+        let w1 = std::thread::spawn(move || {
+            run_point_mass(&mut worker, cfg, point_mass_config(5, 1), u64::MAX, 0)
+        });
+        let stop = AtomicBool::new(false);
+        let mut trainer = Trainer::new(point_mass_config(5, 1), 6, 2).expect("trainer");
+        let mut server = Server::new(&mut server_side, cfg).expect("server");
+        let t0 = std::time::Instant::now();
+        while server.membership().changes().len() < 2 {
+            let until = trainer.progress().transitions + 50;
+            server
+                .serve(&mut trainer, until, &stop, &mut |_| {})
+                .expect("the run goes on");
+            assert!(
+                t0.elapsed() < Duration::from_secs(90),
+                "{:?}",
+                server.membership().changes()
+            );
+        }
+        let c = &server.membership().changes()[1];
+        assert_eq!(
+            (c.rank, c.kind, c.by),
+            (2, RankChangeKind::ReplacementFailed, None)
+        );
+        assert!(
+            c.why.as_deref().is_some_and(|w| w.contains("cannot start")),
+            "{c:?}"
+        );
+        assert_eq!(
+            (server.stats().replaced, server.membership().ranks()),
+            (0, 3)
+        );
+        server.finish().expect("finish");
+        drop(server);
+        let _ = w1.join().expect("rank 1");
     }
 
     /// A link that can be cut: while cut, what the rank sends is held back (as TCP holds it

@@ -16,6 +16,13 @@
 //! since the server's state it last took, so nothing is counted twice; a killed rank's push that
 //! never arrived whole is never applied) and it gets the current state. Only when no worker rank
 //! is left does the server fail ([`DistributedError::RankLost`]); the caller writes a checkpoint.
+//! With [`DistributedConfig::respawn_after`] set, a rank lost for that long is replaced: the
+//! transport starts a new worker rank ([`Transport::replace`]), numbered after every rank so far,
+//! which gets the current state as the ranks did at the start and counts from then on like any
+//! other. Each lost rank is replaced at most once, and a run makes at most as many replacements as
+//! it started with worker ranks (a replacement that keeps dying does not spawn for ever); the time
+//! spent starting one is nobody's silence. A replacement that cannot be started is recorded and
+//! the run goes on without it.
 //! Silence is measured on the server's own clock, which runs only inside [`Server::serve`]: the
 //! time the caller spends between calls (selection, checkpoints) is nobody's silence, and a rank's
 //! silence carries over from one call to the next (resetting it at each call let a stopped rank
@@ -23,7 +30,7 @@
 //! A refused message is counted ([`ExchangeStats::refused`]) and never applied; its sender gets
 //! the current state as if its push had been empty (it then drops what it pushed).
 
-use super::membership::{Membership, RankChange};
+use super::membership::{Membership, RankChange, RankChangeKind};
 use super::message::{self, Message, NetParams, Params, Push};
 use super::worker::{net_beta2, net_sizes};
 use super::{DistributedConfig, DistributedError, ExchangeStats, Transport};
@@ -51,6 +58,8 @@ pub struct Server<'t, T: Transport> {
     stats: ExchangeStats,
     membership: Membership,
     observer: Option<RankObserver<'t>>,
+    /// The most replacements of this run (the worker ranks it started with).
+    max_replacements: u64,
 }
 
 impl<T: Transport> std::fmt::Debug for Server<'_, T> {
@@ -79,6 +88,7 @@ impl<'t, T: Transport> Server<'t, T> {
             stats: ExchangeStats::default(),
             membership: Membership::new(n),
             observer: None,
+            max_replacements: n.saturating_sub(1) as u64,
         })
     }
 
@@ -96,8 +106,10 @@ impl<'t, T: Transport> Server<'t, T> {
 
     fn changed(&mut self, c: RankChange) {
         match c.kind {
-            super::membership::RankChangeKind::Lost => self.stats.lost += 1,
-            super::membership::RankChangeKind::Readmitted => self.stats.readmitted += 1,
+            RankChangeKind::Lost => self.stats.lost += 1,
+            RankChangeKind::Readmitted => self.stats.readmitted += 1,
+            RankChangeKind::Replaced => self.stats.replaced += 1,
+            RankChangeKind::ReplacementFailed => {}
         }
         if let Some(f) = self.observer.as_mut() {
             f(&c);
@@ -144,7 +156,7 @@ impl<'t, T: Transport> Server<'t, T> {
             self.sizes = net_sizes(trainer);
             self.beta2 = net_beta2(trainer);
             trainer.pretrain_only(stop, on_event)?;
-            for r in 1..self.transport.size() {
+            for r in 1..self.membership.ranks() {
                 self.send_params(trainer, r, clock())?;
             }
             // Pre-training is the server's time, not the ranks' silence.
@@ -184,18 +196,18 @@ impl<'t, T: Transport> Server<'t, T> {
                         // Refused, never applied; the rank still gets the state, so it drops
                         // what it pushed and goes on from the server's state.
                         self.stats.refused += 1;
-                        if from > 0 && from < self.transport.size() {
+                        if from > 0 && from < self.membership.ranks() {
                             self.send_params(trainer, from, clock())?;
                         }
                     }
                 }
             }
             let now = clock();
-            for r in 1..self.transport.size() {
+            for r in 1..self.membership.ranks() {
                 if self.membership.is_lost(r) {
                     continue;
                 }
-                let silent = now.saturating_sub(self.last_seen[r]);
+                let silent = now.saturating_sub(self.last_seen.get(r).copied().unwrap_or(now));
                 let stuck = self
                     .oldest_send(r)
                     .map_or(Duration::ZERO, |t| now.saturating_sub(t));
@@ -213,6 +225,9 @@ impl<'t, T: Transport> Server<'t, T> {
                     }
                 }
             }
+            if let Some(after) = self.cfg.respawn_after {
+                self.replace_lost(trainer, after, clock)?;
+            }
             if shown.elapsed() >= Duration::from_millis(500) {
                 on_event(Event::Progress(&trainer.progress()));
                 shown = Instant::now();
@@ -227,20 +242,74 @@ impl<'t, T: Transport> Server<'t, T> {
     /// takes it and ends) and waits (up to the rank timeout) until the ranks present took it.
     pub fn finish(&mut self) -> Result<(), LearnError> {
         let bytes = message::encode(0, &Message::Stop)?;
-        for r in 1..self.transport.size() {
+        for r in 1..self.membership.ranks() {
             self.transport.send(r, bytes.clone())?;
         }
         let t0 = Instant::now();
         while t0.elapsed() < self.cfg.rank_timeout {
             // Pushes still arriving are dropped: the run is over.
             while self.transport.try_recv(None)?.is_some() {}
-            let pending = (1..self.transport.size())
+            let pending = (1..self.membership.ranks())
                 .filter(|&r| !self.membership.is_lost(r))
                 .any(|r| self.transport.in_flight(r) > 0);
             if !pending {
                 return Ok(());
             }
             std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(())
+    }
+
+    /// Starts a replacement for each rank lost for `after` or longer that has none yet (up to
+    /// the run's limit); each gets the current state.
+    fn replace_lost(
+        &mut self,
+        trainer: &Trainer,
+        after: Duration,
+        clock: &dyn Fn() -> Duration,
+    ) -> Result<(), LearnError> {
+        for r in 1..self.membership.ranks() {
+            if self.membership.was_replaced(r)
+                || self
+                    .membership
+                    .lost_for(r, clock())
+                    .is_none_or(|l| l < after)
+            {
+                continue;
+            }
+            if self.stats.replaced >= self.max_replacements {
+                return Ok(());
+            }
+            let t = Instant::now();
+            let got = self.transport.replace(r);
+            // Starting the process is the server's time, not the other ranks' silence.
+            let took = t.elapsed();
+            self.last_seen.iter_mut().for_each(|s| *s += took);
+            for q in &mut self.sends {
+                q.iter_mut().for_each(|s| *s += took);
+            }
+            let transitions = trainer.progress().transitions;
+            let by = match got {
+                Ok(by) => {
+                    let n = self.membership.add_rank();
+                    if n != by {
+                        return Err(DistributedError::Config {
+                            why: "the transport numbered a replacement rank out of order",
+                        }
+                        .into());
+                    }
+                    self.last_seen.push(clock());
+                    self.sends.push(VecDeque::new());
+                    Ok(by)
+                }
+                Err(e) => Err(e.to_string()),
+            };
+            let started = by.as_ref().ok().copied();
+            let c = self.membership.replace(r, by, clock(), transitions);
+            self.changed(c);
+            if let Some(by) = started {
+                self.send_params(trainer, by, clock())?;
+            }
         }
         Ok(())
     }
