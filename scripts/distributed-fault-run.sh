@@ -32,6 +32,11 @@ respawn=()
 rm -rf "$out"; mkdir -p "$out"
 out=$(realpath "$out")
 source scripts/mpi-launch.sh
+# A replacement needs a free slot (the dead rank's is not given back): cluster-sim's hosts have one
+# slot each.
+if [ -n "${RESPAWN:-}" ] && [[ " ${launch[*]} " != *" --oversubscribe "* ]]; then
+  launch+=(--oversubscribe)
+fi
 log="$out.log"
 t0=$(date +%s.%N)
 "${launch[@]}" --mca orte_abort_on_non_zero_status 0 -np 3 "$bin" train --distributed --task "$task" \
