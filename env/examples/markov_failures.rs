@@ -7,7 +7,7 @@
 //!
 //! ```text
 //! cargo run --release -p dex-env --example markov_failures -- --task stack [--episodes 1000] \
-//!     [--seed 0] [--threads 2] [--trace SEED] [--seeds 3,17,42] [--tuck-first]
+//!     [--seed 0] [--threads 2] [--trace SEED] [--seeds 3,17,42] [--tuck-first] [--tuck-ramp]
 //! ```
 
 use std::collections::BTreeMap;
@@ -51,11 +51,14 @@ fn main() -> Result<(), BoxError> {
     let threads: u64 = flag(&args, "--threads", 2)?;
     // The demonstrator with `MarkovDemonstrator::with_tuck_first`.
     let tuck_first = args.iter().any(|a| a == "--tuck-first");
+    // The demonstrator with `MarkovDemonstrator::with_tuck_ramp`.
+    let tuck_ramp = args.iter().any(|a| a == "--tuck-ramp");
+    let switches = (tuck_first, tuck_ramp);
     let trace: Option<u64> =
         flag(&args, "--trace", u64::MAX).map(|t| (t != u64::MAX).then_some(t))?;
     let scene = Scene::load()?;
     if let Some(s) = trace {
-        return trace_episode(&scene, task, s, tuck_first);
+        return trace_episode(&scene, task, s, switches);
     }
     let list: Vec<u64> = flag(&args, "--seeds", String::new())?
         .split(',')
@@ -78,7 +81,7 @@ fn main() -> Result<(), BoxError> {
                     let seeds = (0..episodes)
                         .filter(|e| e % threads == t)
                         .map(|e| list.get(e as usize).copied().unwrap_or(seed + e));
-                    run(scene, task, seeds, tuck_first)
+                    run(scene, task, seeds, switches)
                 })
             })
             .collect();
@@ -122,10 +125,12 @@ fn run(
     scene: &Scene,
     task: Task,
     seeds: impl Iterator<Item = u64>,
-    tuck_first: bool,
+    (tuck_first, tuck_ramp): (bool, bool),
 ) -> Result<(u64, Vec<Failure>), BoxError> {
     let mut env = JacoEnv::new(scene, EnvConfig::new(task));
-    let demo = MarkovDemonstrator::new(task).with_tuck_first(tuck_first);
+    let demo = MarkovDemonstrator::new(task)
+        .with_tuck_first(tuck_first)
+        .with_tuck_ramp(tuck_ramp);
     let mut successes = 0;
     let mut failures = Vec::new();
     for seed in seeds {
@@ -182,9 +187,16 @@ fn in_brick1(env: &JacoEnv, p: [f64; 3]) -> [f64; 3] {
     v.into()
 }
 
-fn trace_episode(scene: &Scene, task: Task, seed: u64, tuck_first: bool) -> Result<(), BoxError> {
+fn trace_episode(
+    scene: &Scene,
+    task: Task,
+    seed: u64,
+    (tuck_first, tuck_ramp): (bool, bool),
+) -> Result<(), BoxError> {
     let mut env = JacoEnv::new(scene, EnvConfig::new(task));
-    let demo = MarkovDemonstrator::new(task).with_tuck_first(tuck_first);
+    let demo = MarkovDemonstrator::new(task)
+        .with_tuck_first(tuck_first)
+        .with_tuck_ramp(tuck_ramp);
     env.reset(seed)?;
     let tips: Vec<usize> = (1..=3)
         .map(|k| {

@@ -44,6 +44,9 @@ pub enum EvalError {
     /// No episodes were asked for.
     #[error("at least one episode is needed")]
     NoEpisodes,
+    /// An ensemble of policies was empty or mixed tasks.
+    #[error("an ensemble needs at least one policy file, all of one task")]
+    EnsembleTasks,
 }
 
 /// Result of evaluating a policy over several episodes.
@@ -180,14 +183,41 @@ pub fn controller_command<const W: usize>(
     can_quantisation: bool,
     envelope: Option<&mut Envelope>,
 ) -> Result<[f32; ACT_DIM], EvalError> {
+    ensemble_command(core::slice::from_mut(mlp), obs, can_quantisation, envelope)
+}
+
+/// [`controller_command`] with the mean of several policies' commands in place of one policy's
+/// (each takes its own inputs, with or without the task features; the envelope and the CAN
+/// quantisation apply to the mean). With one policy it is [`controller_command`] exactly. The
+/// controller runs one network: an ensemble is measured here to be distilled into one
+/// (`trainer imitate --teacher-policies`), not to be flashed.
+pub fn ensemble_command<const W: usize>(
+    mlps: &mut [Mlp<'_, W>],
+    obs: &[f32; OBS_DIM],
+    can_quantisation: bool,
+    envelope: Option<&mut Envelope>,
+) -> Result<[f32; ACT_DIM], EvalError> {
     let input: [f32; OBS_DIM] = if can_quantisation {
         core::array::from_fn(|i| quantise_observation(i, obs[i]))
     } else {
         *obs
     };
     let mut physical = [0.0f32; ACT_DIM];
+    let mut one = [0.0f32; ACT_DIM];
     let mut buf = [0.0f32; INPUT_MAX];
-    mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), &mut physical)?;
+    for (k, mlp) in mlps.iter_mut().enumerate() {
+        let out = if k == 0 { &mut physical } else { &mut one };
+        mlp.act(policy_input(&input, mlp.obs_dim(), &mut buf), out)?;
+        if k > 0 {
+            for (p, x) in physical.iter_mut().zip(one) {
+                *p += x;
+            }
+        }
+    }
+    if mlps.len() > 1 {
+        let n = mlps.len() as f32;
+        physical = physical.map(|p| p / n);
+    }
     if let Some(e) = envelope {
         e.apply(&input, &mut physical);
     }
@@ -279,6 +309,59 @@ pub fn episode_outcomes(
         },
         |(mlp, env, envelope), seed| {
             run_episode(mlp, env, seed, settings.can_quantisation, envelope.as_mut())
+        },
+        on_episode,
+    )
+}
+
+/// [`episode_outcomes`] of the mean of several policy files' commands ([`ensemble_command`]),
+/// all of the Jaco cell's layout.
+pub fn ensemble_outcomes(
+    files: &[&[u8]],
+    scene: &Scene,
+    settings: &EvalSettings,
+    on_episode: &(dyn Fn() + Sync),
+) -> Result<Vec<(f64, bool)>, EvalError> {
+    if files.is_empty() {
+        return Err(EvalError::EnsembleTasks);
+    }
+    let aligned: Vec<_> = files
+        .iter()
+        .map(|f| dex_runtime::aligned::aligned_copy(f))
+        .collect();
+    let views = aligned
+        .iter()
+        .map(|a| decode_jaco_policy(a.as_bytes()))
+        .collect::<Result<Vec<_>, _>>()?;
+    if views.iter().any(|v| v.body().task != views[0].body().task) {
+        return Err(EvalError::EnsembleTasks);
+    }
+    outcomes_in_order(
+        settings,
+        || {
+            let mlps = views
+                .iter()
+                .map(Mlp::<EVAL_WIDTH>::new)
+                .collect::<Result<Vec<_>, _>>()?;
+            Ok((
+                mlps,
+                JacoEnv::new(scene, settings.env),
+                settings.envelope.then(eval_envelope),
+            ))
+        },
+        |(mlps, env, envelope), seed| {
+            let mut obs = env.reset(seed)?;
+            let mut total = 0.0f64;
+            loop {
+                let physical =
+                    ensemble_command(mlps, &obs, settings.can_quantisation, envelope.as_mut())?;
+                let out = env.step(&physical_to_env_action(&physical))?;
+                total += f64::from(out.reward);
+                obs = out.observation;
+                if out.done {
+                    return Ok((total, out.success));
+                }
+            }
         },
         on_episode,
     )

@@ -95,6 +95,11 @@ pub const TUCK_HOLD_TIP_GAP: f64 = 0.015;
 /// the other side keeps the knuckles further away. A function of the state (brick poses, hand yaw):
 /// past the quarter turn the other side is the nearest and stays chosen.
 pub const FLIP_GAP: f64 = 0.01;
+/// With [`MarkovDemonstrator::with_tuck_ramp`]: a finger is fully tucked while its knuckle is
+/// within this horizontal distance (m) of brick 2's footprint ...
+pub const TUCK_RAMP_NEAR: f64 = TUCK_GAP - 0.01;
+/// ... and not tucked at all from this distance on (linear between; centred on [`TUCK_GAP`]).
+pub const TUCK_RAMP_FAR: f64 = TUCK_GAP + 0.01;
 /// The [`FLIP_GAP`] flip applies only where the other side is at most this hand turn (rad) away, i.e.
 /// where the two sides are nearly as far (a longer turn costs more of the episode than it saves).
 pub const FLIP_TURN: f64 = 2.6;
@@ -160,6 +165,7 @@ pub enum MarkovPhase {
 pub struct MarkovDemonstrator {
     task: Task,
     tuck_first: bool,
+    tuck_ramp: bool,
 }
 
 impl MarkovDemonstrator {
@@ -168,6 +174,7 @@ impl MarkovDemonstrator {
         Self {
             task,
             tuck_first: false,
+            tuck_ramp: false,
         }
     }
 
@@ -187,6 +194,24 @@ impl MarkovDemonstrator {
     /// Whether [`MarkovDemonstrator::with_tuck_first`] is on.
     pub const fn tuck_first(&self) -> bool {
         self.tuck_first
+    }
+
+    /// Tuck ramp: a finger's approach angle goes from [`APPROACH_FINGERS`] to [`TUCKED`] linearly
+    /// as its knuckle's gap to brick 2's footprint falls from [`TUCK_RAMP_FAR`] to
+    /// [`TUCK_RAMP_NEAR`] ([`tuck_weight`]), where without it the angle switches at [`TUCK_GAP`].
+    /// The label is then a continuous function of the state, which a network can fit; at the
+    /// switch it jumps by 0.6 (normalised), and the clone, averaging the two sides, tucks too
+    /// little (docs/experiments.md, session 22).
+    pub const fn with_tuck_ramp(self, on: bool) -> Self {
+        Self {
+            tuck_ramp: on,
+            ..self
+        }
+    }
+
+    /// Whether [`MarkovDemonstrator::with_tuck_ramp`] is on.
+    pub const fn tuck_ramp(&self) -> bool {
+        self.tuck_ramp
     }
 
     /// The phase it is in at the environment's state.
@@ -233,9 +258,10 @@ impl MarkovDemonstrator {
                 .and_then(|&a| data.qpos().get(a).copied())
                 .unwrap_or(0.0)
         };
-        let near_brick2: [bool; FINGER_JOINTS] = core::array::from_fn(|k| {
-            knuckles[k].is_some_and(|p| footprint_gap(&p, &b2, &m2) < TUCK_GAP)
-        });
+        let knuckle_gaps: [Option<f64>; FINGER_JOINTS] =
+            core::array::from_fn(|k| knuckles[k].map(|p| footprint_gap(&p, &b2, &m2)));
+        let near_brick2: [bool; FINGER_JOINTS] =
+            core::array::from_fn(|k| knuckle_gaps[k].is_some_and(|g| g < TUCK_GAP));
         let tip_over_brick2 = |k: usize| {
             model
                 .name_to_id(MjtObjBase::mjOBJ_BODY, TIPS[k])
@@ -244,8 +270,10 @@ impl MarkovDemonstrator {
         };
         let approach_fingers: [f64; FINGER_JOINTS] = core::array::from_fn(|k| {
             let q = finger_q(k);
-            let near_brick2 = near_brick2[k];
-            let want = if near_brick2 {
+            let want = if self.tuck_ramp {
+                let w = knuckle_gaps[k].map_or(0.0, tuck_weight);
+                APPROACH_FINGERS + (TUCKED - APPROACH_FINGERS) * w
+            } else if near_brick2[k] {
                 TUCKED
             } else {
                 APPROACH_FINGERS
@@ -417,6 +445,13 @@ impl MarkovDemonstrator {
     }
 }
 
+/// How much a finger whose knuckle is `gap` (m) from brick 2's footprint is tucked
+/// ([`MarkovDemonstrator::with_tuck_ramp`]): 1 up to [`TUCK_RAMP_NEAR`], 0 from [`TUCK_RAMP_FAR`],
+/// linear between.
+pub fn tuck_weight(gap: f64) -> f64 {
+    ((TUCK_RAMP_FAR - gap) / (TUCK_RAMP_FAR - TUCK_RAMP_NEAR)).clamp(0.0, 1.0)
+}
+
 /// How far up (0: free to descend, 1: at the approach height) a finger that should be tucked and
 /// stands at angle `q` holds the hand ([`MarkovDemonstrator::with_tuck_first`]): 1 up to
 /// [`TUCK_HOLD_FROM`], 0 from [`TUCK_HOLD_TO`], linear between.
@@ -453,5 +488,25 @@ mod tests {
             last = h;
         }
         assert!(!MarkovDemonstrator::new(Task::Grasp).tuck_first());
+    }
+
+    #[test]
+    fn the_tuck_ramp_falls_over_the_knuckle_gap_through_the_switch() {
+        assert_eq!(tuck_weight(0.0), 1.0);
+        assert_eq!(tuck_weight(TUCK_RAMP_NEAR), 1.0);
+        assert_eq!(tuck_weight(TUCK_RAMP_FAR), 0.0);
+        assert_eq!(tuck_weight(1.0), 0.0);
+        // Half tucked where the switch it replaces flips.
+        assert!((tuck_weight(TUCK_GAP) - 0.5).abs() < 1e-9);
+        // Continuous: no step larger than the slope allows.
+        let mut last = tuck_weight(0.0);
+        for i in 1..=600 {
+            let w = tuck_weight(1e-4 * f64::from(i));
+            assert!(w <= last && last - w <= 1e-4 / (TUCK_RAMP_FAR - TUCK_RAMP_NEAR) + 1e-12);
+            last = w;
+        }
+        let d = MarkovDemonstrator::new(Task::Grasp);
+        assert!(!d.tuck_ramp() && d.with_tuck_ramp(true).tuck_ramp());
+        assert!(!d.with_tuck_ramp(true).tuck_first());
     }
 }

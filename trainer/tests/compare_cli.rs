@@ -81,3 +81,57 @@ fn compare_runs_every_entry_on_the_same_starts_and_tests_every_pair() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn an_ensemble_of_one_file_is_that_file_and_mixed_tasks_are_refused() {
+    let dir = fresh_path("compare", "ensemble");
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("compare.json");
+    let pair = format!("{REACH_FIXTURE},{INT8}");
+    let o = trainer(&[
+        "compare",
+        REACH_FIXTURE,
+        "--ensemble",
+        REACH_FIXTURE,
+        "--ensemble",
+        &pair,
+        "--episodes",
+        "12",
+        "--seed",
+        "9000000",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let entries = r["entries"].as_array().unwrap();
+    assert_eq!(entries.len(), 3);
+    assert!(
+        entries[1]["name"]
+            .as_str()
+            .unwrap()
+            .starts_with("ensemble of 1"),
+        "{}",
+        entries[1]["name"]
+    );
+    assert!(
+        entries[2]["name"]
+            .as_str()
+            .unwrap()
+            .starts_with("ensemble of 2")
+    );
+    // The one-file ensemble takes the controller's path exactly: the same start-by-start outcome.
+    let p = &r["pairs"].as_array().unwrap()[0]["paired"];
+    assert_eq!(
+        (p["only_a"].as_u64(), p["only_b"].as_u64()),
+        (Some(0), Some(0))
+    );
+    assert_eq!(entries[0]["successes"], entries[1]["successes"]);
+    // An ensemble of two tasks is refused before any episode runs.
+    let stack = concat!(env!("CARGO_MANIFEST_DIR"), "/../policies/stack.dxpl");
+    let mixed = format!("{REACH_FIXTURE},{stack}");
+    let o = trainer(&["compare", "--ensemble", &mixed, "--episodes", "2"]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("one task"), "{}", text(&o));
+}

@@ -7,7 +7,7 @@
 mod common;
 use common::scene;
 
-use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
+use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration, PolicyEnsemble};
 use dex_trainer::env::{Demonstrator, Task};
 use dex_trainer::files::demos::{
     CLOSE_BURST_STEPS, DEMO_FORMAT_VERSION, DemoError, DemoSet, Keep, RecordSettings, record,
@@ -154,6 +154,65 @@ fn the_demonstrator_takes_over_from_a_policy() {
     let all = record_with(scene(), Some(&lead), &markov, &dagger, &|| {}).unwrap();
     assert_eq!((all.header.successes, all.header.episodes), (0, 2));
     assert_eq!(all.rows.len(), 2 * 150);
+}
+
+#[test]
+fn an_ensemble_labels_with_the_mean_of_its_members() {
+    // The two committed Reach policies label the states one of them drives (DAgger, no noise):
+    // the ensemble's label is the mean of theirs at every state, an ensemble of one file is that
+    // file, and an empty ensemble or one of mixed tasks is refused.
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/");
+    let a = std::fs::read(format!("{dir}reach_seed0.dxpl")).unwrap();
+    let b = std::fs::read(format!("{dir}reach_int8_seed0.dxpl")).unwrap();
+    let lead = PolicyDemonstration::from_file_bytes(&a).unwrap();
+    let settings = RecordSettings {
+        episodes: 2,
+        mode: dex_trainer::files::demos::RecordMode::Dagger,
+        keep: Keep::All,
+        ..RecordSettings::new(Task::Reach)
+    };
+    let labels = |src: &DemoSource| {
+        let set = record_with(scene(), Some(&lead), src, &settings, &|| {}).unwrap();
+        (set.rows.iter().map(|r| r.label).collect::<Vec<_>>(), set)
+    };
+    let policy =
+        |f: &[u8]| DemoSource::Policy(Box::new(PolicyDemonstration::from_file_bytes(f).unwrap()));
+    let (la, set_a) = labels(&policy(&a));
+    let (lb, _) = labels(&policy(&b));
+    let (pair, _) = PolicyEnsemble::from_files(&[a.clone(), b.clone()]).unwrap();
+    assert_eq!(pair.len(), 2);
+    let (le, set_e) = labels(&DemoSource::Ensemble(pair));
+    assert!(
+        set_e.header.source.starts_with("policy ensemble"),
+        "{}",
+        set_e.header.source
+    );
+    assert_eq!(le.len(), 2 * Task::Reach.episode_steps() as usize);
+    let mut differ = 0;
+    for ((e, x), y) in le.iter().zip(&la).zip(&lb) {
+        for k in 0..e.len() {
+            assert!(
+                (e[k] - 0.5 * (x[k] + y[k])).abs() < 1e-5,
+                "{e:?} {x:?} {y:?}"
+            );
+            differ += usize::from((x[k] - y[k]).abs() > 1e-3);
+        }
+    }
+    assert!(
+        differ > 0,
+        "the two fixtures act alike: the test would not see a mean"
+    );
+    let (one, _) = PolicyEnsemble::from_files(std::slice::from_ref(&a)).unwrap();
+    let (l1, set_1) = labels(&DemoSource::Ensemble(one));
+    assert_eq!(l1, la);
+    assert_eq!(set_1.rows, set_a.rows);
+    assert!(PolicyEnsemble::from_files(&[]).is_err());
+    let grasp = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../policies/grasp.dxpl"
+    ))
+    .unwrap();
+    assert!(PolicyEnsemble::from_files(&[a, grasp]).is_err());
 }
 
 #[test]

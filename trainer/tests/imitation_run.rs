@@ -207,8 +207,45 @@ fn bad_settings_are_refused() {
     let mut old = json.as_object().unwrap().clone();
     old.remove("dagger_failures_only");
     old.remove("dagger_repeat");
+    old.remove("tuck_ramp");
+    old.remove("teacher_policies");
     let read: ImitationConfig = serde_json::from_value(old.into()).unwrap();
     assert_eq!(read, tiny());
+}
+
+#[test]
+fn a_teacher_ensemble_of_another_task_or_with_a_markov_switch_is_refused() {
+    let fixture = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/reach_seed0.dxpl"
+    ));
+    let switched = ImitationConfig {
+        teacher_policies: vec![fixture.clone()],
+        tuck_ramp: true,
+        ..tiny()
+    };
+    let e = switched.validate().unwrap_err();
+    assert!(e.to_string().contains("teacher_policies"), "{e}");
+    // A Reach policy cannot teach a Grasp run: refused before anything is recorded.
+    let scene = Scene::load().expect("scene");
+    let dir = std::env::temp_dir().join(format!("dex-imitation-ensemble-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let other = ImitationConfig {
+        teacher_policies: vec![fixture.clone()],
+        ..tiny()
+    };
+    let e = run_imitation(&scene, &other, &dir, &mut |_| {}).unwrap_err();
+    assert!(matches!(e, ImitationError::Settings(_)), "{e}");
+    assert!(e.to_string().contains("Reach"), "{e}");
+    assert!(!dir.exists(), "the run folder is not even made");
+    // A file that is not there: a clear error naming it.
+    let missing = ImitationConfig {
+        teacher_policies: vec![dir.join("no-such.dxpl")],
+        ..tiny()
+    };
+    let e = run_imitation(&scene, &missing, &dir, &mut |_| {}).unwrap_err();
+    assert!(e.to_string().contains("no-such.dxpl"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -52,6 +52,63 @@ impl Demonstration for PolicyDemonstration {
     }
 }
 
+/// Several policy files of one task acting as one: the mean of their normalised actions. Clones
+/// of one teacher that differ only in their seed fail on largely different starts (the Grasp
+/// clones of sessions 20-21: each fails 8-13 of 1000 selection starts, the mean of eight of them
+/// 4), so the mean is a better teacher for a single network to be distilled from
+/// (docs/experiments.md, session 22).
+#[derive(Debug, Clone)]
+pub struct PolicyEnsemble {
+    members: Vec<PolicyDemonstration>,
+}
+
+impl PolicyEnsemble {
+    /// The ensemble of `files` (any alignment), all of one task; that task. None is an error, as
+    /// is a file of another task than the first.
+    pub fn from_files(files: &[Vec<u8>]) -> Result<(Self, dex_policy::Task), EvalError> {
+        let mut members = Vec::with_capacity(files.len());
+        let mut task = None;
+        for f in files {
+            let (p, t) = PolicyDemonstration::with_task(f)?;
+            match task {
+                None => task = Some(t),
+                Some(first) if first != t => return Err(EvalError::EnsembleTasks),
+                Some(_) => {}
+            }
+            members.push(p);
+        }
+        let task = task.ok_or(EvalError::EnsembleTasks)?;
+        Ok((Self { members }, task))
+    }
+
+    /// The number of member policies.
+    pub fn len(&self) -> usize {
+        self.members.len()
+    }
+
+    /// Never true: [`PolicyEnsemble::from_files`] refuses an empty ensemble.
+    pub fn is_empty(&self) -> bool {
+        self.members.is_empty()
+    }
+}
+
+impl Demonstration for PolicyEnsemble {
+    /// The members are stateless.
+    fn restart(&mut self) {}
+
+    fn act(&mut self, env: &JacoEnv) -> Result<[f32; ACT_DIM], EnvError> {
+        let mut mean = [0.0f32; ACT_DIM];
+        let n = self.members.len().max(1) as f32;
+        for m in &mut self.members {
+            let a = m.act(env)?;
+            for (s, x) in mean.iter_mut().zip(a) {
+                *s += x / n;
+            }
+        }
+        Ok(mean)
+    }
+}
+
 /// The demonstration behind a training run's start states: the scripted demonstrator or a policy.
 #[derive(Debug, Clone)]
 pub enum DemoSource {
@@ -61,6 +118,8 @@ pub enum DemoSource {
     Markov(MarkovDemonstrator),
     /// An exported policy.
     Policy(Box<PolicyDemonstration>),
+    /// Several exported policies of one task acting as one ([`PolicyEnsemble`]).
+    Ensemble(PolicyEnsemble),
 }
 
 impl Demonstration for DemoSource {
@@ -69,6 +128,7 @@ impl Demonstration for DemoSource {
             DemoSource::Scripted(d) => Demonstration::restart(d),
             DemoSource::Markov(d) => Demonstration::restart(d),
             DemoSource::Policy(p) => p.restart(),
+            DemoSource::Ensemble(e) => e.restart(),
         }
     }
 
@@ -77,6 +137,7 @@ impl Demonstration for DemoSource {
             DemoSource::Scripted(d) => Demonstration::act(d, env),
             DemoSource::Markov(d) => Demonstration::act(d, env),
             DemoSource::Policy(p) => p.act(env),
+            DemoSource::Ensemble(e) => e.act(env),
         }
     }
 }

@@ -293,9 +293,14 @@ pub fn record_with(
                 "{}{}",
                 match source {
                     DemoSource::Scripted(_) => "scripted",
+                    DemoSource::Markov(m) if m.tuck_first() && m.tuck_ramp() => {
+                        "markov (tuck first, tuck ramp)"
+                    }
                     DemoSource::Markov(m) if m.tuck_first() => "markov (tuck first)",
+                    DemoSource::Markov(m) if m.tuck_ramp() => "markov (tuck ramp)",
                     DemoSource::Markov(_) => "markov",
                     DemoSource::Policy(_) => "policy",
+                    DemoSource::Ensemble(_) => "policy ensemble",
                 },
                 match settings.mode {
                     RecordMode::Demonstrator => "",

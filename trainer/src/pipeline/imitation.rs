@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::cell::policy_demo::{DemoSource, PolicyDemonstration};
+use crate::cell::policy_demo::{DemoSource, PolicyDemonstration, PolicyEnsemble};
 use crate::env::{MarkovDemonstrator, Scene, Task};
 use crate::evaluate::{EvalError, EvalSettings, evaluate_policy_file};
 use crate::files::atomic_write::write_atomic;
@@ -63,6 +63,14 @@ pub struct ImitationConfig {
     /// recorded state (clean, DART and DAgger episodes) holding the hand up while a finger whose
     /// tip is over brick 2 is not yet tucked.
     pub tuck_first: bool,
+    /// The Markov teacher's tuck is a ramp over the knuckle's gap to brick 2
+    /// ([`MarkovDemonstrator::with_tuck_ramp`]) instead of a switch.
+    pub tuck_ramp: bool,
+    /// The teacher is the mean of these policy files of the task ([`PolicyEnsemble`]: clones of
+    /// other seeds, say) instead of the Markov demonstrator: the run distils them into one
+    /// network, recording and labelling every episode (clean, DART, DAgger) with their mean
+    /// action. Empty: the Markov demonstrator.
+    pub teacher_policies: Vec<PathBuf>,
     /// Close bursts in the DART episodes ([`RecordSettings::close_bursts`]: the probability per
     /// step of holding the fingers closing for 3-8 steps; 0: none).
     pub close_bursts: f32,
@@ -100,6 +108,8 @@ impl Default for ImitationConfig {
             close_bursts: 0.0,
             open_bursts: 0.0,
             tuck_first: false,
+            tuck_ramp: false,
+            teacher_policies: Vec::new(),
             bc: BcConfig {
                 steps: 30_000,
                 features: true,
@@ -166,6 +176,13 @@ impl ImitationConfig {
                 "dagger_repeat {} is outside 1..=100",
                 self.dagger_repeat
             )));
+        }
+        if !self.teacher_policies.is_empty() && (self.tuck_first || self.tuck_ramp) {
+            return Err(ImitationError::Settings(
+                "tuck_first and tuck_ramp change the Markov teacher; a run taught by policy files \
+                 (teacher_policies) has none"
+                    .into(),
+            ));
         }
         if self.rounds > 0 && self.episodes_per_round == 0 {
             return Err(ImitationError::Settings(
@@ -312,6 +329,27 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ImitationError + '_ {
     }
 }
 
+/// The policy files of `cfg.teacher_policies` as one teacher, checked to be of the run's task
+/// (None: the run's teacher is the Markov demonstrator).
+fn teacher_ensemble(cfg: &ImitationConfig) -> Result<Option<PolicyEnsemble>, ImitationError> {
+    if cfg.teacher_policies.is_empty() {
+        return Ok(None);
+    }
+    let files = cfg
+        .teacher_policies
+        .iter()
+        .map(|p| std::fs::read(p).map_err(io(p)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (ensemble, task) = PolicyEnsemble::from_files(&files)?;
+    if task != crate::files::export::task_code(cfg.task) {
+        return Err(ImitationError::Settings(format!(
+            "teacher_policies are {task:?} policies; the run learns {}",
+            crate::files::demos::task_name(cfg.task)
+        )));
+    }
+    Ok(Some(ensemble))
+}
+
 /// Runs (or resumes) an imitation run in `dir`.
 pub fn run_imitation(
     scene: &Scene,
@@ -320,6 +358,9 @@ pub fn run_imitation(
     on_event: &mut dyn FnMut(ImitationEvent<'_>),
 ) -> Result<ImitationSummary, ImitationError> {
     cfg.validate()?;
+    // Before the folder is touched: a teacher file that is missing or of another task leaves
+    // nothing behind.
+    let ensemble = teacher_ensemble(cfg)?;
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     // Held until the run ends: a second run in this folder is refused at once.
     let _lock = crate::pipeline::run_lock::RunLock::acquire(dir)?;
@@ -334,8 +375,14 @@ pub fn run_imitation(
         Ok(_) => {}
         Err(_) => write_atomic(&settings_path, settings.as_bytes()).map_err(io(&settings_path))?,
     }
-    let expert =
-        |task| DemoSource::Markov(MarkovDemonstrator::new(task).with_tuck_first(cfg.tuck_first));
+    let expert = |task| match &ensemble {
+        Some(e) => DemoSource::Ensemble(e.clone()),
+        None => DemoSource::Markov(
+            MarkovDemonstrator::new(task)
+                .with_tuck_first(cfg.tuck_first)
+                .with_tuck_ramp(cfg.tuck_ramp),
+        ),
+    };
     let bc = BcConfig {
         seed: cfg.seed,
         ..cfg.bc.clone()

@@ -9,7 +9,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use serde::Serialize;
 
-use dex_trainer::env::evaluate::{episode_outcomes, teacher_outcomes};
+use dex_trainer::env::evaluate::{ensemble_outcomes, episode_outcomes, teacher_outcomes};
 use dex_trainer::env::paired::Paired;
 use dex_trainer::evaluate::{PolicyEval, wilson_interval};
 use dex_trainer::files::atomic_write::write_atomic;
@@ -22,8 +22,13 @@ use crate::train::{bar, load_scene};
 #[derive(Args, Debug)]
 pub struct CompareArgs {
     /// Policy files, all of one task.
-    #[arg(required = true)]
+    #[arg(required_unless_present = "ensemble")]
     policies: Vec<PathBuf>,
+    /// Also an ensemble: the mean of these policy files' commands (comma-separated; the flag may
+    /// repeat, one entry each). The controller runs one network, so an ensemble is measured to be
+    /// distilled into one (`trainer imitate --teacher-policies`), not flashed.
+    #[arg(long)]
+    ensemble: Vec<String>,
     /// Also the task's Markov demonstrator (the teacher the clones learn from), on the same
     /// starts (it reads the simulation's state: no CAN quantisation or envelope applies to it).
     #[arg(long)]
@@ -73,7 +78,22 @@ struct Comparison {
 pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     let mut files = Vec::with_capacity(args.policies.len());
     let mut task = None;
-    for path in &args.policies {
+    let ensembles: Vec<Vec<PathBuf>> = args
+        .ensemble
+        .iter()
+        .map(|list| {
+            list.split(',')
+                .filter(|p| !p.is_empty())
+                .map(PathBuf::from)
+                .collect()
+        })
+        .collect();
+    if ensembles.iter().any(Vec::is_empty) {
+        bail!("--ensemble names no policy file");
+    }
+    let members: Vec<&PathBuf> = ensembles.iter().flatten().collect();
+    let mut member_bytes = std::collections::HashMap::new();
+    for path in args.policies.iter().chain(members.iter().copied()) {
         let bytes =
             std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
         let aligned = dex_runtime::aligned::aligned_copy(&bytes);
@@ -88,7 +108,10 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
             ),
             Some(_) => {}
         }
-        files.push((path.display().to_string(), bytes));
+        member_bytes.insert(path.clone(), bytes);
+    }
+    for path in &args.policies {
+        files.push((path.display().to_string(), member_bytes[path].clone()));
     }
     let Some(task) = task else {
         bail!("no policy file given");
@@ -96,7 +119,7 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     let scene = load_scene()?;
     let settings = args.at.settings(task, args.episodes, false);
     let started = Instant::now();
-    let entries = files.len() + usize::from(args.teacher);
+    let entries = files.len() + ensembles.len() + usize::from(args.teacher);
     let pb = bar(
         u64::from(args.episodes) * entries as u64,
         false,
@@ -111,6 +134,20 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
         let o = episode_outcomes(bytes, &scene, &settings, &|| pb.inc(1))
             .with_context(|| format!("evaluating {name}"))?;
         outcomes.push((name.clone(), o));
+    }
+    for list in &ensembles {
+        let bytes: Vec<&[u8]> = list.iter().map(|p| member_bytes[p].as_slice()).collect();
+        let name = format!(
+            "ensemble of {} ({})",
+            list.len(),
+            list.iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let o = ensemble_outcomes(&bytes, &scene, &settings, &|| pb.inc(1))
+            .with_context(|| format!("evaluating the {name}"))?;
+        outcomes.push((name, o));
     }
     pb.finish_and_clear();
     println!(

@@ -37,6 +37,15 @@ pub struct ImitateArgs {
     /// brick 2 is not yet tucked (docs/imitation.md).
     #[arg(long)]
     tuck_first: bool,
+    /// The Markov teacher's tuck is a ramp over the knuckle's distance to brick 2 (2-4 cm)
+    /// instead of a switch at 3 cm (docs/imitation.md).
+    #[arg(long)]
+    tuck_ramp: bool,
+    /// Distil these policy files (of the task; e.g. clones of other seeds) into one network: their
+    /// mean action is the teacher instead of the Markov demonstrator (repeat the flag or separate
+    /// with commas).
+    #[arg(long, value_delimiter = ',')]
+    teacher_policies: Vec<std::path::PathBuf>,
     /// Close bursts in the DART episodes: the probability per step of holding the executed
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
@@ -119,6 +128,12 @@ impl ImitateArgs {
         }
         if self.tuck_first {
             c.tuck_first = true;
+        }
+        if self.tuck_ramp {
+            c.tuck_ramp = true;
+        }
+        if !self.teacher_policies.is_empty() {
+            c.teacher_policies = self.teacher_policies.clone();
         }
         if let Some(v) = self.rounds {
             c.rounds = v;
