@@ -83,7 +83,7 @@ pub(crate) use with_mpi::{point_mass, train};
 
 #[cfg(feature = "mpi")]
 mod with_mpi {
-    use super::{PointMassArgs, config};
+    use super::{DistributedConfig, PointMassArgs, config};
     use crate::TrainArgs;
     use crate::train::{Terminal, apply_flags, load_scene, stop_flag};
     use dex_trainer::learn::Progress;
@@ -134,6 +134,24 @@ mod with_mpi {
     pub(crate) fn train(a: &TrainArgs) -> anyhow::Result<()> {
         let cfg = config(a.exchange_every, a.rank_timeout, a.respawn_after)?;
         let mut transport = MpiTransport::init()?;
+        let result = train_with(a, cfg, &mut transport);
+        if let Err(e) = &result
+            && transport.is_replacement()
+        {
+            line_to_stderr(&format!("error: rank {}: {e:#}", transport.rank()));
+            // A replacement that failed must not disconnect from rank 0 (dropping the transport
+            // would: it waits for rank 0, and an MPI_Abort while it waits hung mpirun in the
+            // spike): it exits without finalising MPI, as a dead rank does, and rank 0 loses it.
+            std::process::exit(FAILED);
+        }
+        result
+    }
+
+    fn train_with(
+        a: &TrainArgs,
+        cfg: DistributedConfig,
+        transport: &mut MpiTransport,
+    ) -> anyhow::Result<()> {
         let stop = stop_flag()?;
         let mut s = train_settings::load(a.config.as_deref())?;
         apply_flags(&mut s, a);
@@ -151,7 +169,7 @@ mod with_mpi {
             let mut terminal = Terminal::new(a.quiet);
             let (result, stats, lost) = {
                 // Each lost or re-admitted worker rank as it happens, one write per line.
-                let mut server = Server::new(&mut transport, cfg)?
+                let mut server = Server::new(&mut *transport, cfg)?
                     .on_rank_change(|c| line_to_stderr(&format!("rank 0: {c}")));
                 let r = plan.train_distributed(
                     &scene,
@@ -204,7 +222,7 @@ mod with_mpi {
                     "rank {rank}: started by rank 0 as a replacement worker rank (MPI_Comm_spawn)"
                 ));
             }
-            let (stats, progress) = plan.train_worker_rank(&scene, &mut transport, cfg, &stop)?;
+            let (stats, progress) = plan.train_worker_rank(&scene, &mut *transport, cfg, &stop)?;
             report(rank, t0.elapsed().as_secs_f64(), &progress, &stats);
         }
         Ok(())

@@ -117,8 +117,14 @@ impl MpiTransport {
             });
         }
         let world = universe.world();
-        let parent = match world.parent() {
-            Some(p) => Some(hello(p)?),
+        let parent = match world.parent().map(hello) {
+            Some(Ok(p)) => Some(p),
+            Some(Err(e)) => {
+                // Not finalised: that would first disconnect from rank 0 and wait for it (for
+                // ever if it is gone); the process ends as a dead rank does.
+                std::mem::forget(universe);
+                return Err(e);
+            }
             None => None,
         };
         Ok(MpiTransport {
@@ -433,6 +439,18 @@ fn spawn_same_program() -> Result<InterCommunicator, DistributedError> {
 
 /// A replacement's start: waits for rank 0's first message (its rank and the world's size).
 fn hello(parent: InterCommunicator) -> Result<(usize, usize, InterCommunicator), DistributedError> {
+    match read_hello(&parent) {
+        Ok((rank, size)) => Ok((rank, size, parent)),
+        Err(e) => {
+            // Not disconnected: that waits for rank 0 (for ever if it is gone).
+            std::mem::forget(parent);
+            Err(e)
+        }
+    }
+}
+
+/// Waits for rank 0's first message on `parent` and reads it.
+fn read_hello(parent: &InterCommunicator) -> Result<(usize, usize), DistributedError> {
     let t0 = Instant::now();
     loop {
         if let Some((m, _)) = parent
@@ -457,7 +475,7 @@ fn hello(parent: InterCommunicator) -> Result<(usize, usize, InterCommunicator),
                     why: "a replacement's rank out of range",
                 });
             }
-            return Ok((rank, size, parent));
+            return Ok((rank, size));
         }
         if t0.elapsed() > HELLO_WAIT {
             return Err(DistributedError::NoServer {
