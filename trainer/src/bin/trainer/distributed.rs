@@ -206,13 +206,17 @@ mod with_mpi {
                 // (it would hold MPI_Finalize, and mpirun, for ever) or dead (under
                 // `orte_abort_on_non_zero_status 0` mpirun then never ends either): end the job.
                 // mpirun exits 0 for a stopped rank, 137 when one was killed.
-                let replaced = match stats.replaced {
-                    0 => String::new(),
-                    n => format!(", {n} replacement ranks were started"),
+                let state = match (lost.is_empty(), stats.replaced) {
+                    (false, 0) => format!("worker ranks {lost:?} are still lost"),
+                    (false, n) => format!(
+                        "worker ranks {lost:?} are still lost, {n} replacement ranks were started"
+                    ),
+                    (true, n) => {
+                        format!("no worker rank is lost, {n} replacement ranks were started")
+                    }
                 };
                 line_to_stderr(&format!(
-                    "rank 0: the run is complete; worker ranks {lost:?} are still lost{replaced}: \
-                     ending the job (MPI_Abort with code 0)"
+                    "rank 0: the run is complete; {state}: ending the job (MPI_Abort with code 0)"
                 ));
                 transport.abort(0);
             }

@@ -302,6 +302,7 @@ impl<'t, T: Transport> Server<'t, T> {
                     self.sends.push(VecDeque::new());
                     Ok(by)
                 }
+                Err(DistributedError::Spawn { why }) => Err(why),
                 Err(e) => Err(e.to_string()),
             };
             let started = by.as_ref().ok().copied();
