@@ -14,6 +14,9 @@
 //!   server's answer arrives it moves its state onto the server's (keeping what it learned
 //!   meanwhile). The threads never wait for the network.
 //! - [`message`] is the wire format; a corrupt message is refused and counted, never applied.
+//! - [`membership`]: a silent worker rank is lost and the run goes on; one heard from again is
+//!   re-admitted; with [`DistributedConfig::respawn_after`] one lost for long enough is replaced
+//!   by a newly started rank ([`Transport::replace`]; `MPI_Comm_spawn` over MPI).
 //!
 //! Why a push carries parameter changes rather than raw gradients: each rank applies its own Adam
 //! steps (first moment local, the second moment a copy of the server's, refreshed at every
