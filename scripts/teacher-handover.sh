@@ -5,8 +5,8 @@
 # shipped and once tucking first (`MarkovDemonstrator::with_tuck_first`). Prints one line per
 # episode and the counts (docs/experiments.md, session 21, "A teacher that tucks first").
 # Usage: bash scripts/teacher-handover.sh POLICY.dxpl EPISODE...
-#   e.g. the shipped clone's 26 failures of 2000:
-#   bash scripts/teacher-handover.sh policies/grasp.dxpl 145 159 190 236 381 477 664 675 848 910 \
+#   e.g. the session-14 clone's 26 failures of 2000 (shipped until session 22):
+#   bash scripts/teacher-handover.sh trainer/tests/fixtures/grasp_clone_session14.dxpl 145 159 190 236 381 477 664 675 848 910 \
 #     980 997 1062 1120 1308 1442 1478 1494 1509 1649 1667 1726 1743 1829 1913 1985
 set -euo pipefail
 cd "$(dirname "$0")/.."

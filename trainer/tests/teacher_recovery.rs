@@ -1,7 +1,8 @@
 //! The Markov teacher that tucks first (`MarkovDemonstrator::with_tuck_first`) recovers from the
-//! state in which the shipped Grasp clone stalls: a fingertip resting on brick 2, the hand held
-//! about 1 cm above the grasp point (docs/experiments.md, session 21). The clone
-//! (`policies/grasp.dxpl`, through the runtime with CAN quantisation, as `trainer eval` runs it)
+//! state in which the Grasp clone shipped until session 22 stalls: a fingertip resting on brick 2,
+//! the hand held about 1 cm above the grasp point (docs/experiments.md, session 21). The clone
+//! (`tests/fixtures/grasp_clone_session14.dxpl`, the `policies/grasp.dxpl` of sessions 14-21,
+//! through the runtime with CAN quantisation, as `trainer eval` runs it)
 //! drives five of its failed starts until a hand body first touches brick 2; the teacher then
 //! acts. Needs MuJoCo (`scripts/setup-mujoco.sh`).
 
@@ -15,7 +16,7 @@ use dex_trainer::evaluate::{controller_command, physical_to_env_action};
 mod common;
 use common::scene;
 
-/// Final-evaluation episodes (from `EVAL_SEED`) the shipped clone fails by stalling on brick 2.
+/// Final-evaluation episodes (from `EVAL_SEED`) the clone fails by stalling on brick 2.
 const STALLS: [u64; 5] = [675, 848, 1062, 1120, 1494];
 
 /// Whether a body of the arm or hand touches brick 2.
@@ -53,9 +54,9 @@ fn takeover(mlp: &mut Mlp<'_, 1024>, e: u64, teacher: MarkovDemonstrator) -> (bo
 fn the_teacher_that_tucks_first_recovers_from_the_clones_stall_on_brick_2() {
     let bytes = std::fs::read(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../policies/grasp.dxpl"
+        "/tests/fixtures/grasp_clone_session14.dxpl"
     ))
-    .expect("policies/grasp.dxpl");
+    .expect("tests/fixtures/grasp_clone_session14.dxpl");
     let aligned = dex_runtime::testkit::aligned_copy(&bytes);
     let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes()).unwrap();
     let mut mlp = Mlp::<1024>::new(&view).unwrap();
