@@ -153,13 +153,32 @@ pub fn run_episode_recorded(
     env: &mut JacoEnv,
     seed: u64,
     can_quantisation: bool,
+    envelope: Option<&mut Envelope>,
+    record: Option<&mut Vec<[f32; ACT_DIM]>>,
+) -> Result<(f64, bool), EvalError> {
+    ensemble_episode(
+        core::slice::from_mut(mlp),
+        env,
+        seed,
+        can_quantisation,
+        envelope,
+        record,
+    )
+}
+
+/// One episode driven by [`ensemble_command`] (with one policy: [`run_episode_recorded`]).
+fn ensemble_episode(
+    mlps: &mut [Mlp<'_, EVAL_WIDTH>],
+    env: &mut JacoEnv,
+    seed: u64,
+    can_quantisation: bool,
     mut envelope: Option<&mut Envelope>,
     mut record: Option<&mut Vec<[f32; ACT_DIM]>>,
 ) -> Result<(f64, bool), EvalError> {
     let mut obs = env.reset(seed)?;
     let mut total = 0.0f64;
     loop {
-        let physical = controller_command(mlp, &obs, can_quantisation, envelope.as_deref_mut())?;
+        let physical = ensemble_command(mlps, &obs, can_quantisation, envelope.as_deref_mut())?;
         if let Some(r) = record.as_deref_mut() {
             r.push(physical);
         }
@@ -296,26 +315,11 @@ pub fn episode_outcomes(
     settings: &EvalSettings,
     on_episode: &(dyn Fn() + Sync),
 ) -> Result<Vec<(f64, bool)>, EvalError> {
-    let aligned = dex_runtime::aligned::aligned_copy(file);
-    let view = decode_jaco_policy(aligned.as_bytes())?;
-    outcomes_in_order(
-        settings,
-        || {
-            Ok((
-                Mlp::<EVAL_WIDTH>::new(&view)?,
-                JacoEnv::new(scene, settings.env),
-                settings.envelope.then(eval_envelope),
-            ))
-        },
-        |(mlp, env, envelope), seed| {
-            run_episode(mlp, env, seed, settings.can_quantisation, envelope.as_mut())
-        },
-        on_episode,
-    )
+    ensemble_outcomes(&[file], scene, settings, on_episode)
 }
 
 /// [`episode_outcomes`] of the mean of several policy files' commands ([`ensemble_command`]),
-/// all of the Jaco cell's layout.
+/// all of the Jaco cell's layout and of one task (one file: [`episode_outcomes`]).
 pub fn ensemble_outcomes(
     files: &[&[u8]],
     scene: &Scene,
@@ -350,18 +354,14 @@ pub fn ensemble_outcomes(
             ))
         },
         |(mlps, env, envelope), seed| {
-            let mut obs = env.reset(seed)?;
-            let mut total = 0.0f64;
-            loop {
-                let physical =
-                    ensemble_command(mlps, &obs, settings.can_quantisation, envelope.as_mut())?;
-                let out = env.step(&physical_to_env_action(&physical))?;
-                total += f64::from(out.reward);
-                obs = out.observation;
-                if out.done {
-                    return Ok((total, out.success));
-                }
-            }
+            ensemble_episode(
+                mlps,
+                env,
+                seed,
+                settings.can_quantisation,
+                envelope.as_mut(),
+                None,
+            )
         },
         on_episode,
     )
