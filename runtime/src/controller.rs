@@ -17,8 +17,13 @@
 use dex_policy::{FORMAT_VERSION, PolicyView};
 use heapless::Vec;
 
+use core::marker::PhantomData;
+
 use crate::can::e2e::E2eSender;
+use crate::can::fd_frame::{AnyFrame, FdFrame, TxFrame};
+use crate::can::fd_messages::encode_action_fd;
 use crate::can::frame::CanFrame;
+use crate::can::layout::FrameLayout;
 use crate::can::messages::{
     ACTION_FRAMES, ACTION_QUANTITY, NMT_ID, NmtCommand, NodeIdError, OBS_FRAMES, TPDOS,
     check_node_id, emcy_frame, encode_action, heartbeat_frame, policy_info_frame, status_frame,
@@ -44,8 +49,10 @@ pub const SDO_RESPONSE_BASE: u16 = 0x580;
 
 /// Frames to send after one call; 10 slots, and no call produces more than 8 (a poll's 7: a
 /// state change's heartbeat and status, an emergency, three safe-action frames and the policy
-/// information; and an SDO timeout's abort).
-pub type Outbox = Vec<CanFrame, 10>;
+/// information; and an SDO timeout's abort). `F` is the controller's frame type: classic frames
+/// ([`CanFrame`], the default), or [`AnyFrame`] for a controller in the FD layout
+/// ([`Controller::new_fd`]), whose action goes out as one FD frame.
+pub type Outbox<F = CanFrame> = Vec<F, 10>;
 
 /// Controller states, in CANopen's spirit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -263,10 +270,14 @@ enum Policy<'p, const WIDTH: usize> {
     Slot(Network<WIDTH>),
 }
 
-/// The controller; `WIDTH` is the evaluator's compile-time capacity (widest layer).
+/// The controller; `WIDTH` is the evaluator's compile-time capacity (widest layer), `F` the
+/// frames it sends ([`Outbox`]): classic frames by default, [`AnyFrame`] for the FD layout.
 #[derive(Debug, Clone)]
-pub struct Controller<'p, const WIDTH: usize> {
+pub struct Controller<'p, const WIDTH: usize, F: TxFrame = CanFrame> {
     cfg: ControllerConfig,
+    /// Which frames carry the observation and the action.
+    layout: FrameLayout,
+    frames: PhantomData<fn() -> F>,
     state: State,
     fault: FaultCode,
     policy: Option<Policy<'p, WIDTH>>,
@@ -297,11 +308,27 @@ pub struct Controller<'p, const WIDTH: usize> {
     sdo: SdoSide,
 }
 
-impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
-    /// A controller in [`State::Boot`] with no policy.
+impl<'p, const WIDTH: usize> Controller<'p, WIDTH, AnyFrame> {
+    /// A controller in [`State::Boot`] with no policy, in the CAN FD layout
+    /// ([`crate::can::fd_messages`]): it takes the observation in two FD frames and sends the
+    /// action in one; every other frame it takes and sends is a classic frame, as in
+    /// [`Controller::new`]. The same states, watchdog, E2E checks and refusals as classic.
+    pub fn new_fd(cfg: ControllerConfig) -> Self {
+        let mut c = Self::new(cfg);
+        c.layout = FrameLayout::Fd;
+        c.assembler =
+            ObservationAssembler::with_layout(cfg.node_id, cfg.e2e_max_delta, FrameLayout::Fd);
+        c
+    }
+}
+
+impl<'p, const WIDTH: usize, F: TxFrame> Controller<'p, WIDTH, F> {
+    /// A controller in [`State::Boot`] with no policy, in the classic layout.
     pub fn new(cfg: ControllerConfig) -> Self {
         Controller {
             cfg,
+            layout: FrameLayout::Classic,
+            frames: PhantomData,
             state: State::Boot,
             fault: FaultCode::None,
             policy: None,
@@ -339,6 +366,11 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// The communication objects' state: identity, heartbeat time, the emergency history (0x1003).
     pub fn device_state(&self) -> &DeviceState {
         &self.sdo.device
+    }
+
+    /// The frame layout of the observation and the action.
+    pub fn layout(&self) -> FrameLayout {
+        self.layout
     }
 
     /// Current state.
@@ -479,7 +511,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         frame: &impl embedded_can::Frame,
         clock: &impl Clock,
         slots: &mut PolicySlots<'_>,
-    ) -> Outbox {
+    ) -> Outbox<F> {
         let request = SDO_REQUEST_BASE + u16::from(self.cfg.node_id);
         match frame.id() {
             embedded_can::Id::Standard(s) if !frame.is_remote_frame() && s.as_raw() == request => {
@@ -511,7 +543,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// [`Controller::poll`] for a controller whose policy lives in `slots`: also aborts an SDO
     /// transfer that has seen no request for the server's timeout (abort 0x0504_0000 on
     /// `0x580 + node`; a cut program download leaves the active policy as it was).
-    pub fn poll_slots(&mut self, clock: &impl Clock, slots: &mut PolicySlots<'_>) -> Outbox {
+    pub fn poll_slots(&mut self, clock: &impl Clock, slots: &mut PolicySlots<'_>) -> Outbox<F> {
         let mut out = self.poll(clock);
         if self.sdo.server.busy() {
             let now_ms = sdo_ms(clock);
@@ -542,16 +574,16 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         result
     }
 
-    fn push_sdo(&self, response: Option<SdoFrame>, out: &mut Outbox) {
+    fn push_sdo(&self, response: Option<SdoFrame>, out: &mut Outbox<F>) {
         let id = SDO_RESPONSE_BASE + u16::from(self.cfg.node_id);
         if let Some(f) = response.and_then(|r| CanFrame::standard(id, &r)) {
-            let _ = out.push(f);
+            let _ = out.push(F::classic(f));
         }
     }
 
     /// Handles one received frame; returns the frames to send (actions when this frame completed an
     /// observation while operational, an emergency when it caused a fault).
-    pub fn on_frame(&mut self, frame: &impl embedded_can::Frame, clock: &impl Clock) -> Outbox {
+    pub fn on_frame(&mut self, frame: &impl embedded_can::Frame, clock: &impl Clock) -> Outbox<F> {
         self.frame_in(frame, clock, None)
     }
 
@@ -560,7 +592,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         frame: &impl embedded_can::Frame,
         clock: &impl Clock,
         slots: Option<&mut PolicySlots<'_>>,
-    ) -> Outbox {
+    ) -> Outbox<F> {
         let mut out = Outbox::new();
         let id = match frame.id() {
             embedded_can::Id::Standard(s) if !frame.is_remote_frame() => s.as_raw(),
@@ -590,7 +622,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// so the first command on the bus when it comes back is zero velocity. NMT start is refused
     /// while the bus is off. Returns the frames to hand to the driver (it may drop them).
     /// A second call before recovery does nothing.
-    pub fn on_bus_off(&mut self) -> Outbox {
+    pub fn on_bus_off(&mut self) -> Outbox<F> {
         let mut out = Outbox::new();
         if self.bus_off {
             return out;
@@ -613,7 +645,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     /// state (pre-operational after a bus-off in operational: the master re-enables the node with
     /// NMT start, which reports the error reset with emergency 0x0000) and the safe action.
     /// Without a preceding [`Controller::on_bus_off`] it does nothing.
-    pub fn on_bus_recovered(&mut self) -> Outbox {
+    pub fn on_bus_recovered(&mut self) -> Outbox<F> {
         let mut out = Outbox::new();
         if !self.bus_off {
             return out;
@@ -627,7 +659,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
 
     /// Runs the periodic part when a period boundary has passed: watchdog, heartbeat and the safe
     /// action outside operational. Call it at least once per period; calling it more often is fine.
-    pub fn poll(&mut self, clock: &impl Clock) -> Outbox {
+    pub fn poll(&mut self, clock: &impl Clock) -> Outbox<F> {
         let mut out = Outbox::new();
         let now = clock.now_us();
         let period = u64::from(self.cfg.period_us.max(1));
@@ -683,7 +715,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         out
     }
 
-    fn on_nmt(&mut self, data: &[u8], clock: &impl Clock, out: &mut Outbox) {
+    fn on_nmt(&mut self, data: &[u8], clock: &impl Clock, out: &mut Outbox<F>) {
         let (Some(&code), Some(&node)) = (data.first(), data.get(1)) else {
             self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
             return;
@@ -749,7 +781,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         k: usize,
         data: &[u8],
         clock: &impl Clock,
-        out: &mut Outbox,
+        out: &mut Outbox<F>,
         slots: Option<&mut PolicySlots<'_>>,
     ) {
         self.frames_this_cycle = true;
@@ -820,10 +852,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             Ok(()) => {
                 let limited = self.envelope.apply(&self.obs, &mut action);
                 self.action = action;
-                let node = self.cfg.node_id;
-                for f in encode_action(node, &self.action, sample, &mut self.action_tx) {
-                    self.push_tpdo(f, out);
-                }
+                self.push_action(sample, out);
                 // After the action frames, so a plant waiting for them reads them first.
                 if limited.sustained_started {
                     self.push_emcy_code(FaultCode::EnvelopeSustained, out);
@@ -842,7 +871,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
 
     /// The first evaluation of a newly activated slot failed: safe-stop, the previous slot back,
     /// emergency 0xFF07. Without a previous policy to go back to, the usual fault.
-    fn roll_back_on_fault(&mut self, slots: &mut PolicySlots<'_>, out: &mut Outbox) {
+    fn roll_back_on_fault(&mut self, slots: &mut PolicySlots<'_>, out: &mut Outbox<F>) {
         match slots
             .roll_back_trial(|view, file| Ok((self.bind_slot(view, file)?, policy_info_of(view))))
         {
@@ -861,20 +890,23 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
 
     /// CANopen boot-up message (heartbeat with state 0x00, sent whatever the heartbeat time),
     /// then pre-operational.
-    fn boot_up(&mut self, out: &mut Outbox) {
+    fn boot_up(&mut self, out: &mut Outbox<F>) {
         self.state = State::Boot;
-        let _ = out.push(heartbeat_frame(self.cfg.node_id, State::Boot.canopen()));
+        let _ = out.push(F::classic(heartbeat_frame(
+            self.cfg.node_id,
+            State::Boot.canopen(),
+        )));
         self.enter(State::PreOperational, out);
     }
 
-    fn safe_stop(&mut self, fault: FaultCode, out: &mut Outbox) {
+    fn safe_stop(&mut self, fault: FaultCode, out: &mut Outbox<F>) {
         self.fault = fault;
         self.enter(State::SafeStop, out);
         self.push_emcy(out);
         self.send_safe_action(out);
     }
 
-    fn enter(&mut self, state: State, out: &mut Outbox) {
+    fn enter(&mut self, state: State, out: &mut Outbox<F>) {
         if self.state != state {
             if self.state == State::Operational {
                 self.envelope.end_run();
@@ -887,23 +919,20 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         }
     }
 
-    fn send_safe_action(&mut self, out: &mut Outbox) {
+    fn send_safe_action(&mut self, out: &mut Outbox<F>) {
         self.action = [0.0; ACT_DIM];
         self.own_sample = self.own_sample.wrapping_add(1) & 0x0F;
-        let node = self.cfg.node_id;
-        for f in encode_action(node, &self.action, self.own_sample, &mut self.action_tx) {
-            self.push_tpdo(f, out);
-        }
+        self.push_action(self.own_sample, out);
     }
 
     /// The heartbeat (one NMT state byte; not while the heartbeat time is 0) and the status
     /// TPDO (controller state, fault code, envelope status; always).
-    fn push_status(&mut self, out: &mut Outbox) {
+    fn push_status(&mut self, out: &mut Outbox<F>) {
         self.cycles_since_heartbeat = 0;
         self.status_sent = true;
         let node = self.cfg.node_id;
         if self.sdo.device.heartbeat_ms != 0 {
-            let _ = out.push(heartbeat_frame(node, self.state.canopen()));
+            let _ = out.push(F::classic(heartbeat_frame(node, self.state.canopen())));
         }
         let f = status_frame(
             node,
@@ -916,7 +945,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
     }
 
     /// Sends a TPDO frame, remembering its E2E header for object 0x2201.
-    fn push_tpdo(&mut self, f: CanFrame, out: &mut Outbox) {
+    fn push_tpdo(&mut self, f: CanFrame, out: &mut Outbox<F>) {
         let node = self.cfg.node_id;
         let id = f.standard_id();
         if let (Some(k), [a, b, ..]) = (
@@ -925,22 +954,49 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
         ) {
             self.tpdo_headers[k] = u16::from_le_bytes([*a, *b]);
         }
-        let _ = out.push(f);
+        let _ = out.push(F::classic(f));
     }
 
-    fn push_emcy(&mut self, out: &mut Outbox) {
+    /// Sends the FD action frame (TPDO 0), remembering its E2E header for object 0x2201; a frame
+    /// type without FD frames never gets here ([`Controller::new_fd`] is the FD layout's only way).
+    fn push_tpdo_fd(&mut self, f: FdFrame, out: &mut Outbox<F>) {
+        if let [a, b, ..] = embedded_can::Frame::data(&f) {
+            self.tpdo_headers[0] = u16::from_le_bytes([*a, *b]);
+        }
+        if let Some(f) = F::fd(f) {
+            let _ = out.push(f);
+        }
+    }
+
+    /// The action frames of the current action, tagged `sample`, in the controller's layout.
+    fn push_action(&mut self, sample: u8, out: &mut Outbox<F>) {
+        let node = self.cfg.node_id;
+        match self.layout {
+            FrameLayout::Classic => {
+                for f in encode_action(node, &self.action, sample, &mut self.action_tx) {
+                    self.push_tpdo(f, out);
+                }
+            }
+            FrameLayout::Fd => {
+                let f = encode_action_fd(node, &self.action, sample, &mut self.action_tx[0]);
+                self.push_tpdo_fd(f, out);
+            }
+        }
+    }
+
+    fn push_emcy(&mut self, out: &mut Outbox<F>) {
         self.push_emcy_code(self.fault, out);
     }
 
     /// Emergency for `fault` (its error code and fault code) with the current state.
-    fn push_emcy_code(&mut self, fault: FaultCode, out: &mut Outbox) {
+    fn push_emcy_code(&mut self, fault: FaultCode, out: &mut Outbox<F>) {
         self.push_emcy_with(fault.emcy_code(), fault, out);
     }
 
     /// Emergency with `error_code`, the error register (0x1001) as it stands, `fault`'s fault
     /// code and the current state; an error (not the error reset 0x0000) is recorded in the
     /// pre-defined error field (0x1003) with the same code.
-    fn push_emcy_with(&mut self, error_code: u16, fault: FaultCode, out: &mut Outbox) {
+    fn push_emcy_with(&mut self, error_code: u16, fault: FaultCode, out: &mut Outbox<F>) {
         if error_code != 0 {
             self.sdo.device.record_emergency(error_code, fault.code());
         }
@@ -953,10 +1009,10 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH> {
             self.state.code(),
             &mut self.emcy_tx,
         );
-        let _ = out.push(f);
+        let _ = out.push(F::classic(f));
     }
 
-    fn push_policy_info(&mut self, out: &mut Outbox) {
+    fn push_policy_info(&mut self, out: &mut Outbox<F>) {
         let (hash, version, task) = match self.info {
             Some(i) => (i.layout_hash, i.format_version as u8, i.task),
             None => (0, FORMAT_VERSION as u8, 0xFF),
@@ -984,7 +1040,9 @@ fn policy_info_of(view: &PolicyView<'_>) -> PolicyInfo {
 pub const OBS_FRAMES_PER_CYCLE: usize = OBS_FRAMES;
 
 /// The controller as the application of CiA 302-3 program download ([`crate::canopen::program`]).
-impl<const WIDTH: usize> crate::canopen::program::ProgramHost for Controller<'_, WIDTH> {
+impl<const WIDTH: usize, F: TxFrame> crate::canopen::program::ProgramHost
+    for Controller<'_, WIDTH, F>
+{
     fn may_change_program(&self) -> bool {
         self.state != State::Operational
     }
@@ -1012,7 +1070,9 @@ impl<const WIDTH: usize> crate::canopen::program::ProgramHost for Controller<'_,
 
 /// The controller as the application behind the communication objects
 /// ([`crate::canopen::device`]).
-impl<const WIDTH: usize> crate::canopen::device::DeviceHost for Controller<'_, WIDTH> {
+impl<const WIDTH: usize, F: TxFrame> crate::canopen::device::DeviceHost
+    for Controller<'_, WIDTH, F>
+{
     /// Bit 0 (generic) while a fault is latched, bit 4 (communication) for a watchdog timeout or
     /// bus-off, bit 7 (manufacturer-specific) for the other faults.
     fn error_register(&self) -> u8 {

@@ -1,10 +1,11 @@
-//! Assembling one observation from its frames, never mixing two cycles, and checking it.
+//! Assembling one observation from its frames, never mixing two cycles, and checking it; the
+//! same code for the classic and the FD layout ([`FrameLayout`]): only the number and length of
+//! the frames differ.
 
 use crate::can::e2e::{E2eReceiver, E2eStatus};
-use crate::can::messages::{
-    OBS_FRAMES, SIGNALS_PER_FRAME, from_raw, observation_frame_index, rpdo_cob_id,
-    split_signal_frame,
-};
+use crate::can::fd_messages::raw_value;
+use crate::can::layout::FrameLayout;
+use crate::can::messages::{OBS_FRAMES, from_raw, observation_frame_index, rpdo_cob_id};
 use crate::interface::{OBS_DIM, Quantity, quantity_of};
 
 /// What one observation frame did to the assembly.
@@ -42,6 +43,7 @@ pub enum ObservationFault {
 #[derive(Debug, Clone)]
 pub struct ObservationAssembler {
     node: u8,
+    layout: FrameLayout,
     receivers: [E2eReceiver; OBS_FRAMES],
     sample: Option<u8>,
     received: u32,
@@ -51,14 +53,18 @@ pub struct ObservationAssembler {
     pub abandoned: u32,
 }
 
-const ALL_FRAMES: u32 = (1u32 << OBS_FRAMES) - 1;
-
 impl ObservationAssembler {
-    /// An empty assembler for the observation frames (RPDOs) of controller `node`, whose
+    /// An empty assembler for the classic observation frames (RPDOs) of controller `node`, whose
     /// end-to-end receivers accept counter jumps up to `max_delta`.
     pub fn new(node: u8, max_delta: u8) -> Self {
+        Self::with_layout(node, max_delta, FrameLayout::Classic)
+    }
+
+    /// [`ObservationAssembler::new`] for the observation frames of `layout`.
+    pub fn with_layout(node: u8, max_delta: u8, layout: FrameLayout) -> Self {
         ObservationAssembler {
             node,
+            layout,
             receivers: [E2eReceiver::new(max_delta); OBS_FRAMES],
             sample: None,
             received: 0,
@@ -75,43 +81,58 @@ impl ObservationAssembler {
         self.received = 0;
     }
 
+    /// The frame layout it assembles.
+    pub fn layout(&self) -> FrameLayout {
+        self.layout
+    }
+
     /// Index of the observation frame with CAN id `id`, if it is one of this node's.
     pub fn frame_index(&self, id: u16) -> Option<usize> {
-        observation_frame_index(self.node, id)
+        observation_frame_index(self.node, id).filter(|&k| k < self.layout.observation_frames())
     }
 
     /// Takes observation frame `k`. Frames of a new sample abandon an incomplete older one.
+    /// A frame of the wrong length for the layout is [`FrameOutcome::Malformed`].
     pub fn push(&mut self, k: usize, data: &[u8]) -> FrameOutcome {
-        let Some(receiver) = self.receivers.get_mut(k) else {
+        let layout = self.layout;
+        let Some(receiver) = self
+            .receivers
+            .get_mut(k)
+            .filter(|_| k < layout.observation_frames())
+        else {
             return FrameOutcome::Malformed;
         };
-        if data.len() != 8 {
+        if data.len() != layout.observation_len() {
             return FrameOutcome::Malformed;
         }
         let status = receiver.check(rpdo_cob_id(self.node, k), data);
         if status != E2eStatus::Ok {
             return FrameOutcome::Rejected(status);
         }
-        let Some((sample, raw)) = split_signal_frame(data) else {
-            return FrameOutcome::Malformed;
-        };
+        let sample = data[1] >> 4;
         self.headers[k] = u16::from_le_bytes([data[0], data[1]]);
         if self.sample != Some(sample) {
-            if self.received != 0 && self.received != ALL_FRAMES {
+            if self.received != 0 && self.received != (1u32 << layout.observation_frames()) - 1 {
                 self.abandoned = self.abandoned.saturating_add(1);
             }
             self.sample = Some(sample);
             self.received = 0;
         }
-        for (s, r) in raw.iter().enumerate() {
-            let index = k * SIGNALS_PER_FRAME + s;
-            if let (Some(slot), Some(q)) = (self.values.get_mut(index), quantity_of(index)) {
-                *slot = from_raw(*r, q.lsb());
+        let per_frame = layout.observation_values_per_frame();
+        for s in 0..per_frame {
+            let index = k * per_frame + s;
+            if let (Some(slot), Some(q), Some(r)) = (
+                self.values.get_mut(index),
+                quantity_of(index),
+                raw_value(data, s),
+            ) {
+                *slot = from_raw(r, q.lsb());
             }
         }
+        let all = (1u32 << layout.observation_frames()) - 1;
         let before = self.received;
         self.received |= 1 << k;
-        if self.received == ALL_FRAMES && before != ALL_FRAMES {
+        if self.received == all && before != all {
             FrameOutcome::Complete { sample }
         } else {
             FrameOutcome::Stored
