@@ -216,10 +216,9 @@ fn pretraining_on_demonstrations_starts_from_the_cloned_policy_with_frozen_scali
     assert!(cloning_gap(&cold, &demos) > 2.0 * after);
 }
 
-#[test]
-fn critic_warm_up_keeps_the_starting_actor_until_the_critic_has_rated_it() {
+/// A starting actor that already solves the task: pre-trained on demonstrations.
+fn pretrained_actor() -> Vec<f32> {
     let stop = AtomicBool::new(false);
-    // A starting actor that already solves the task: pre-trained on demonstrations.
     let mut cfg = small_config(6);
     cfg.demos.fraction = 0.25;
     cfg.demos.bc_weight = 1.0;
@@ -227,7 +226,79 @@ fn critic_warm_up_keeps_the_starting_actor_until_the_critic_has_rated_it() {
     let mut pre = Trainer::new(cfg, 6, 2).expect("trainer");
     pre.set_demonstrations(demonstrations(40)).expect("demos");
     pre.run(env, 1, &stop, &mut quiet).expect("run");
-    let start = pre.actor().1.to_vec();
+    pre.actor().1.to_vec()
+}
+
+#[test]
+fn ibrl_executes_the_proposal_where_the_critic_prefers_it_and_resumes_bit_identically() {
+    let stop = AtomicBool::new(false);
+    let proposal = pretrained_actor();
+    let mut cfg = small_config(9);
+    cfg.ibrl = true;
+    // The actor starts from fresh weights, the proposal solves the task.
+    let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+    assert!(
+        t.run(env, 300, &stop, &mut quiet).is_err(),
+        "an IBRL run without its proposal"
+    );
+    assert!(t.set_proposal(vec![0.0; 7]).is_err(), "another shape");
+    t.set_proposal(proposal.clone()).expect("proposal");
+    let s = t.run(env, 3_000, &stop, &mut quiet).expect("run");
+    let shares: Vec<f64> = s
+        .records
+        .iter()
+        .map(|r| r.proposal_share.expect("share reported"))
+        .collect();
+    assert!(
+        shares.iter().all(|&x| (0.0..=1.0).contains(&x)) && shares.iter().any(|&x| x > 0.0),
+        "{shares:?}"
+    );
+    let best = s.records.iter().map(|r| r.success_rate).fold(0.0, f64::max);
+    assert!(
+        best >= 0.9,
+        "the actor did not learn beside its proposal: {best}"
+    );
+    // A run without ibrl takes no proposal and reports no share.
+    let mut plain = Trainer::new(small_config(9), 6, 2).expect("trainer");
+    assert!(plain.set_proposal(proposal.clone()).is_err());
+    let s = plain.run(env, 400, &stop, &mut quiet).expect("run");
+    assert!(s.records.iter().all(|r| r.proposal_share.is_none()));
+    // Bad combinations are refused before training.
+    let mut bad = cfg.clone();
+    bad.ddpg.residual = Some(8);
+    assert!(Trainer::new(bad, 6, 2).is_err(), "with a residual");
+    let mut bad = cfg.clone();
+    bad.quantise.aware_from = Some(100);
+    assert!(Trainer::new(bad, 6, 2).is_err(), "quantisation-aware");
+
+    let run = |chunks: &[u64]| {
+        let dir =
+            std::env::temp_dir().join(format!("dex-ibrl-{}-{}", std::process::id(), chunks.len()));
+        std::fs::create_dir_all(&dir).expect("tmp");
+        let path = dir.join("ckpt.bin");
+        let mut t = Trainer::new(cfg.clone(), 6, 2).expect("trainer");
+        t.set_proposal(proposal.clone()).expect("proposal");
+        for &c in chunks {
+            t.run(env, c, &stop, &mut quiet).expect("run");
+            t.save(&path).expect("save");
+            t = Trainer::load(&path).expect("load");
+            // The checkpoint does not hold the proposal: running without it is refused.
+            assert!(t.run(env, c + 100, &stop, &mut quiet).is_err());
+            t.set_proposal(proposal.clone()).expect("proposal");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+        params_bits(&t)
+    };
+    assert!(
+        run(&[1_200]) == run(&[500, 1_200]),
+        "a resumed IBRL run differs from the uninterrupted one"
+    );
+}
+
+#[test]
+fn critic_warm_up_keeps_the_starting_actor_until_the_critic_has_rated_it() {
+    let stop = AtomicBool::new(false);
+    let start = pretrained_actor();
 
     let mut warm = small_config(7);
     warm.critic_warmup_updates = 300;

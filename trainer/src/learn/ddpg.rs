@@ -196,13 +196,13 @@ impl Networks {
 pub struct UpdateBuffers {
     /// The sampled mini-batch.
     pub batch: Batch,
-    actor_s: MlpScratch,
-    critic_s: MlpScratch,
-    target_actor_s: MlpScratch,
-    critic_in: Vec<f32>,
-    next_act: Vec<f32>,
-    y: Vec<f32>,
-    dq: Vec<f32>,
+    pub(crate) actor_s: MlpScratch,
+    pub(crate) critic_s: MlpScratch,
+    pub(crate) target_actor_s: MlpScratch,
+    pub(crate) critic_in: Vec<f32>,
+    pub(crate) next_act: Vec<f32>,
+    pub(crate) y: Vec<f32>,
+    pub(crate) dq: Vec<f32>,
     q_demo: Vec<f32>,
     dcritic_in: Vec<f32>,
     dact: Vec<f32>,
@@ -243,7 +243,7 @@ impl UpdateBuffers {
 }
 
 /// Writes rows `[obs | act]` into `out`.
-fn concat(obs: &[f32], act: &[f32], n: usize, od: usize, ad: usize, out: &mut [f32]) {
+pub(crate) fn concat(obs: &[f32], act: &[f32], n: usize, od: usize, ad: usize, out: &mut [f32]) {
     for r in 0..n {
         let row = &mut out[r * (od + ad)..(r + 1) * (od + ad)];
         row[..od].copy_from_slice(&obs[r * od..(r + 1) * od]);

@@ -30,6 +30,7 @@ pub mod ddpg;
 pub mod demo_data;
 pub mod distributed;
 pub mod env;
+pub mod ibrl;
 pub mod kernel;
 pub mod n_step;
 pub mod nets;

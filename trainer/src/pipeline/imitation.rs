@@ -468,6 +468,7 @@ pub fn run_imitation(
                     success_rate,
                     train_return: 0.0,
                     worker: 0,
+                    proposal_share: None,
                 };
                 records.retain(|r| r.eval_index != u64::from(round));
                 records.push(rec);

@@ -352,6 +352,7 @@ mod tests {
             success_rate,
             train_return: 0.0,
             worker: 0,
+            proposal_share: None,
         }
     }
 

@@ -67,6 +67,12 @@ pub enum SettingsError {
          needs init_policy (--init-policy) or the clone stage ([clone], --clone)"
     )]
     ResidualWithoutInit,
+    /// IBRL's proposal without a starting policy to propose.
+    #[error(
+        "run.ibrl proposes the actions of the policy the run starts from: it needs init_policy \
+         (--init-policy) or the clone stage ([clone], --clone)"
+    )]
+    IbrlWithoutInit,
     /// `start.failed_starts` without a starting policy to screen.
     #[error(
         "start.failed_starts screens the policy a run starts from: it needs init_policy \
@@ -776,6 +782,9 @@ impl TrainSettings {
         }
         if self.run.ddpg.residual.is_some() && self.init_policy.is_none() && self.clone.is_none() {
             return Err(SettingsError::ResidualWithoutInit);
+        }
+        if self.run.ibrl && self.init_policy.is_none() && self.clone.is_none() {
+            return Err(SettingsError::IbrlWithoutInit);
         }
         let f = &self.start;
         if f.failed_starts > 0 {

@@ -211,6 +211,7 @@ mod tests {
                             success_rate: 0.1 * i as f64,
                             train_return: 0.0,
                             worker: 0,
+                            proposal_share: None,
                         }
                         .to_json_line()
                     })

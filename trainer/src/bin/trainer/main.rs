@@ -265,6 +265,11 @@ struct TrainArgs {
     /// apply the cloning term (--bc-weight) to every batch row toward it (run.teacher_labels).
     #[arg(long)]
     teacher_labels: bool,
+    /// IBRL: the starting policy (--init-policy or --clone) stays beside the actor as a frozen
+    /// proposal; each step executes whichever of the two actions the critic rates higher, and
+    /// the critic bootstraps from the better one (run.ibrl). The export is the actor alone.
+    #[arg(long)]
+    ibrl: bool,
 }
 
 #[derive(Args, Debug)]

@@ -46,6 +46,7 @@ fn learner_flags(a: &TrainArgs) -> bool {
         || a.critic_warmup_updates.is_some()
         || a.residual.is_some()
         || a.teacher_labels
+        || a.ibrl
 }
 
 pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
@@ -186,6 +187,9 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     }
     if a.teacher_labels {
         s.run.teacher_labels = true;
+    }
+    if a.ibrl {
+        s.run.ibrl = true;
     }
     if let Some(n) = a.pretrain_updates {
         s.run.demos.pretrain_updates = n;

@@ -434,6 +434,7 @@ impl<'t, T: Transport> Server<'t, T> {
                 success_rate: e.success_rate,
                 train_return: e.train_return,
                 worker: (from - 1) * workers + e.worker as usize,
+                proposal_share: None,
             };
             on_event(Event::Eval(&rec));
             records.push(rec);

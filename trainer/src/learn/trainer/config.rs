@@ -95,6 +95,12 @@ pub struct RunConfig {
     /// it visits itself, not only on the teacher's own, while the critic's gradient moves it
     /// where the return says the teacher is wrong. Needs `n_step = 1` and `demos.bc_weight > 0`.
     pub teacher_labels: bool,
+    /// The starting policy as a frozen proposal (IBRL; [`crate::learn::ibrl`]): each step the
+    /// worker executes whichever of the actor's noisy action and the starting policy's action
+    /// the critic rates higher, and the critic's targets bootstrap from the better of the two.
+    /// The starting policy is given with [`Trainer::set_proposal`] (the run's `init_policy`);
+    /// the export is the actor alone. Not with a residual actor or quantisation-aware training.
+    pub ibrl: bool,
     /// Seed of everything random in the run.
     pub seed: u64,
 }
@@ -125,6 +131,7 @@ impl Default for RunConfig {
             demos: DemoDataConfig::default(),
             critic_warmup_updates: 0,
             teacher_labels: false,
+            ibrl: false,
             seed: 0,
         }
     }
@@ -185,6 +192,19 @@ impl RunConfig {
             return bad(
                 "teacher_labels",
                 "needs demos.bc_weight > 0 (the labels are the cloning term's targets)",
+            );
+        }
+        if self.ibrl && self.ddpg.residual.is_some() {
+            return bad(
+                "ibrl",
+                "the proposal is the starting policy beside the actor; a residual actor already \
+                 holds it inside (choose one)",
+            );
+        }
+        if self.ibrl && self.quantise.aware_from.is_some() {
+            return bad(
+                "ibrl",
+                "not supported with quantisation-aware training (quantise.aware_from)",
             );
         }
         if self.obs_norm.frozen_from_demos && !(self.obs_norm.enabled && self.demos.uses_demos()) {

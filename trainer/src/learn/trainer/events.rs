@@ -25,6 +25,10 @@ pub struct EvalRecord {
     pub train_return: f64,
     /// The worker that ran the evaluation.
     pub worker: usize,
+    /// With [`super::RunConfig::ibrl`]: the share of the training steps since the previous
+    /// evaluation on which the proposal's action was executed (this process's workers).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub proposal_share: Option<f64>,
 }
 
 impl EvalRecord {

@@ -85,6 +85,9 @@ pub struct Trainer {
     pub(crate) counters: Counters,
     /// Demonstration transitions (not in checkpoints: given again on resume).
     pub(crate) demos: Option<DemoBuffer>,
+    /// The frozen proposal actor of [`RunConfig::ibrl`] (not in checkpoints: given again on
+    /// resume).
+    pub(crate) proposal: Option<Vec<f32>>,
 }
 
 impl Trainer {
@@ -150,6 +153,7 @@ impl Trainer {
             workers,
             counters: Counters::default(),
             demos: None,
+            proposal: None,
         })
     }
 
@@ -249,6 +253,22 @@ impl Trainer {
             let std = 1.0 / f64::from(k);
             stats.m2[i] = std * std;
         }
+        Ok(())
+    }
+
+    /// Gives an [`RunConfig::ibrl`] run its frozen proposal: the starting policy's parameters
+    /// in the actor's shape and input (the run's `init_policy`, as [`Trainer::set_initial_actor`]
+    /// or [`Trainer::set_initial_actor_normalised`] took it). Needed again after loading a
+    /// checkpoint, which does not hold it. Fails without `ibrl` or when the shape differs.
+    pub fn set_proposal(&mut self, params: Vec<f32>) -> Result<(), LearnError> {
+        if !self.cfg.ibrl {
+            return Err(LearnError::Config {
+                field: "ibrl",
+                why: "a proposal is given to a run with ibrl = true only",
+            });
+        }
+        self.nets.actor.layers(&params)?;
+        self.proposal = Some(params);
         Ok(())
     }
 
@@ -419,6 +439,13 @@ impl Trainer {
                 why: "the run draws demonstration rows but no demonstrations were given",
             });
         }
+        if self.cfg.ibrl && self.proposal.is_none() {
+            return Err(LearnError::Config {
+                field: "ibrl",
+                why: "the run proposes the starting policy's actions but none was given \
+                      (Trainer::set_proposal)",
+            });
+        }
         let Trainer {
             cfg,
             nets,
@@ -427,6 +454,7 @@ impl Trainer {
             workers,
             counters,
             demos,
+            proposal,
         } = self;
         let per: Vec<u64> = workers.iter().map(|w| w.transitions).collect();
         if per.iter().sum::<u64>() >= until_transitions && !pretrain_only {
@@ -465,6 +493,9 @@ impl Trainer {
                 })
             }),
             demos: demos.as_ref(),
+            proposal: proposal.as_deref(),
+            proposal_chosen: AtomicU64::new(0),
+            proposal_steps: AtomicU64::new(0),
             returns: Mutex::new((s.train_return_sum, s.train_return_n)),
             obs_stats: Mutex::new(s.obs_stats),
             replay: shared_replay.take().map(Mutex::new),

@@ -11,6 +11,11 @@ pub(super) struct Ctx<'a> {
     /// The twin critic, with `td3.twin_critics`.
     pub(super) critic2: Option<Mutex<NetShared>>,
     pub(super) demos: Option<&'a DemoBuffer>,
+    /// The frozen proposal actor of [`RunConfig::ibrl`].
+    pub(super) proposal: Option<&'a [f32]>,
+    /// Steps on which the proposal's action was executed, and steps, since the last evaluation.
+    pub(super) proposal_chosen: AtomicU64,
+    pub(super) proposal_steps: AtomicU64,
     pub(super) returns: Mutex<(f64, u64)>,
     pub(super) obs_stats: Mutex<ObsStats>,
     pub(super) replay: Option<Mutex<Replay>>,

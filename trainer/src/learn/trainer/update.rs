@@ -95,6 +95,15 @@ pub(super) fn update(
         smoothing,
         &mut local.bufs,
     )?;
+    if let Some(proposal) = ctx.proposal {
+        crate::learn::ibrl::bootstrap_with_proposal(
+            nets,
+            cfg.ddpg.gamma,
+            proposal,
+            [&local.target_critic, second_target],
+            &mut local.bufs,
+        )?;
+    }
     critic_regression(nets, &local.critic, CriticSlot::First, &mut local.bufs)?;
     if twin {
         critic_regression(nets, &local.critic2, CriticSlot::Second, &mut local.bufs)?;

@@ -118,6 +118,7 @@ pub(super) fn worker_loop<E: Env>(
     let mut label = vec![0.0f32; ad];
     let mut obs_n = vec![0.0f32; od];
     let mut eval_scratch = nets.actor.scratch(1);
+    let mut proposal_scratch = crate::learn::ibrl::ProposalScratch::new(nets);
     let norm_on = cfg.obs_norm.enabled;
     let norm_moves = norm_on && !cfg.obs_norm.frozen();
     let observe = |x: &[f32], norm: &mut Normalizer| -> Result<(), LearnError> {
@@ -154,6 +155,25 @@ pub(super) fn worker_loop<E: Env>(
             .actor
             .forward(params, &obs_n, 1, &mut local.act_scratch)?;
         noise.perturb(&mut ws.rng, mean, &mut action);
+        if let Some(proposal) = ctx.proposal {
+            let second = if ctx.critic2.is_some() {
+                &local.critic2
+            } else {
+                &local.critic
+            };
+            let chosen = crate::learn::ibrl::choose(
+                nets,
+                proposal,
+                [&local.critic, second],
+                &obs_n,
+                &mut action,
+                &mut proposal_scratch,
+            )?;
+            if chosen == crate::learn::ibrl::Chosen::Proposal {
+                ctx.proposal_chosen.fetch_add(1, Ordering::Relaxed);
+            }
+            ctx.proposal_steps.fetch_add(1, Ordering::Relaxed);
+        }
         if cfg.teacher_labels && !env.expert_action(&mut label) {
             return Err(LearnError::Worker(
                 "teacher_labels: the environment has no teacher",
@@ -219,6 +239,11 @@ pub(super) fn worker_loop<E: Env>(
                     *r = (0.0, 0);
                     m
                 };
+                let proposal_share = ctx.proposal.map(|_| {
+                    let chosen = ctx.proposal_chosen.swap(0, Ordering::Relaxed);
+                    let steps = ctx.proposal_steps.swap(0, Ordering::Relaxed);
+                    chosen as f64 / steps.max(1) as f64
+                });
                 ctx.evals.fetch_max(index, Ordering::Relaxed);
                 let p = ctx.progress();
                 // The receiver only goes away when the run is over; nothing to do then.
@@ -233,6 +258,7 @@ pub(super) fn worker_loop<E: Env>(
                     success_rate,
                     train_return,
                     worker: id,
+                    proposal_share,
                 });
             }
             if ctx.transitions.load(Ordering::Relaxed) >= ctx.until {

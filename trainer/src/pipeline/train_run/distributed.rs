@@ -74,6 +74,9 @@ fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
     if s.run.ddpg.residual.is_some() {
         return no("a residual actor (run.ddpg.residual: fine-tune a clone in a local run)");
     }
+    if s.run.ibrl {
+        return no("IBRL's proposal (run.ibrl: fine-tune a clone with it in a local run)");
+    }
     if s.start.failed_starts > 0 {
         return no("failed-start revisits (start.failed_starts: screen a clone in a local run)");
     }

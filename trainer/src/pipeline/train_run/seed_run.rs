@@ -69,6 +69,14 @@ pub(super) fn train_seed(
         }
         t
     };
+    if s.run.ibrl {
+        // The proposal is the starting policy as the actor takes it (not in checkpoints).
+        match &plan.init_actor {
+            Some(InitActor::Folded(params)) => trainer.set_proposal(params.clone())?,
+            Some(InitActor::Normalised(a)) => trainer.set_proposal(a.params.clone())?,
+            None => return Err(SettingsError::IbrlWithoutInit.into()),
+        }
+    }
     if let Some(d) = demonstrations(s, seed, &dir, scene, on_event)? {
         on_event(TrainEvent::DemosLoaded {
             seed,
