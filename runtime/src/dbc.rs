@@ -3,10 +3,18 @@
 //! names fixed identifiers: the committed file is that of the default node 0x10; another node's
 //! frames have the same layouts on the identifiers [`crate::can::messages::rpdo_cob_id`] and
 //! [`crate::can::messages::tpdo_cob_id`] give (or generate its own with [`generate`]).
+//!
+//! The CAN FD layout ([`crate::can::fd_messages`]) has its own file from the same definitions,
+//! `can/jaco_fd.dbc` ([`generate_fd`]): the two 48-byte observation frames and the 20-byte action
+//! frame marked as FD frames with bit-rate switching (the `VFrameFormat` attribute
+//! `StandardCAN_FD`, `CANFD_BRS` 1, `BusType` "CAN FD", as cantools and Vector tools read them);
+//! every other message as in `can/jaco.dbc`.
 
 use std::fmt::Write;
 use std::string::String;
 
+use crate::can::fd_messages::{FD_ACTION_LEN, FD_OBS_FRAMES, FD_OBS_LEN, FD_VALUES_PER_OBS_FRAME};
+use crate::can::layout::FrameLayout;
 use crate::can::messages::{
     ACTION_FRAMES, ACTION_QUANTITY, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NMT_ID, OBS_FRAMES,
     POLICY_INFO_TPDO, SIGNALS_PER_FRAME, STATUS_LEN, STATUS_TPDO, rpdo_cob_id, tpdo_cob_id,
@@ -137,8 +145,82 @@ fn signal(out: &mut String, name: &str, slot: usize, q: Quantity, limit: f32, re
     );
 }
 
-/// The DBC text for a controller with CANopen node id `node`.
+/// The DBC text for a controller with CANopen node id `node` (the classic layout).
 pub fn generate(node: u8) -> String {
+    generate_layout(node, FrameLayout::Classic)
+}
+
+/// The DBC text of the CAN FD layout for a controller with CANopen node id `node`.
+pub fn generate_fd(node: u8) -> String {
+    generate_layout(node, FrameLayout::Fd)
+}
+
+/// Name of FD observation frame `k` (`OBS_FD_0`, `OBS_FD_1`).
+pub fn fd_observation_message_name(k: usize) -> String {
+    std::format!("OBS_FD_{k}")
+}
+
+/// Name of the FD action frame.
+pub const FD_ACTION_MESSAGE: &str = "ACTION_FD";
+
+/// The FD layout's observation and action messages.
+fn fd_messages(out: &mut String, node: u8) {
+    let _ = writeln!(
+        out,
+        "BO_ {} {FD_ACTION_MESSAGE}: {FD_ACTION_LEN} CONTROLLER",
+        tpdo_cob_id(node, 0)
+    );
+    e2e_header(out, "PLANT", Some("sample_counter"));
+    for (slot, j) in ACTION_JOINTS.iter().enumerate() {
+        signal(out, j.name, slot, ACTION_QUANTITY, j.max, "PLANT");
+    }
+    out.push('\n');
+    for k in 0..FD_OBS_FRAMES {
+        let _ = writeln!(
+            out,
+            "BO_ {} {}: {FD_OBS_LEN} PLANT",
+            rpdo_cob_id(node, k),
+            fd_observation_message_name(k)
+        );
+        e2e_header(out, "CONTROLLER", Some("sample_counter"));
+        for slot in 0..FD_VALUES_PER_OBS_FRAME {
+            let index = k * FD_VALUES_PER_OBS_FRAME + slot;
+            if let (Some(name), Some(q)) = (
+                observation_signal_name(index),
+                crate::interface::quantity_of(index),
+            ) {
+                signal(out, &name, slot, q, q.limit(), "CONTROLLER");
+            }
+        }
+        out.push('\n');
+    }
+}
+
+/// The attributes that mark the FD layout's frames as CAN FD frames with bit-rate switching.
+fn fd_attributes(out: &mut String, node: u8) {
+    out.push_str("BA_DEF_ \"BusType\" STRING ;\n");
+    out.push_str(
+        "BA_DEF_ BO_ \"VFrameFormat\" ENUM \"StandardCAN\",\"ExtendedCAN\",\"reserved\",\"J1939PG\",\
+         \"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\"reserved\",\
+         \"reserved\",\"reserved\",\"reserved\",\"StandardCAN_FD\",\"ExtendedCAN_FD\";\n",
+    );
+    out.push_str("BA_DEF_ BO_ \"CANFD_BRS\" ENUM \"0\",\"1\";\n");
+    out.push_str("BA_DEF_DEF_ \"BusType\" \"CAN\";\n");
+    out.push_str("BA_DEF_DEF_ \"VFrameFormat\" \"StandardCAN\";\n");
+    out.push_str("BA_DEF_DEF_ \"CANFD_BRS\" \"1\";\n");
+    out.push_str("BA_ \"BusType\" \"CAN FD\";\n");
+    let ids = core::iter::once(tpdo_cob_id(node, 0))
+        .chain((0..FD_OBS_FRAMES).map(|k| rpdo_cob_id(node, k)));
+    for id in ids {
+        // 14: StandardCAN_FD.
+        let _ = writeln!(out, "BA_ \"VFrameFormat\" BO_ {id} 14;");
+        let _ = writeln!(out, "BA_ \"CANFD_BRS\" BO_ {id} 1;");
+    }
+}
+
+/// The DBC text for node `node` in `layout`.
+fn generate_layout(node: u8, layout: FrameLayout) -> String {
+    let fd = layout == FrameLayout::Fd;
     let mut out = String::new();
     out.push_str("VERSION \"dexterous-stack jaco cell 1\"\n\nNS_ :\n\tCM_\n\tBA_DEF_\n\tBA_\n\tVAL_\n\nBS_:\n\n");
     out.push_str("BU_: MASTER PLANT CONTROLLER\n\n");
@@ -157,7 +239,7 @@ pub fn generate(node: u8) -> String {
     out.push_str(" SG_ alive_counter : 48|4@1+ (1,0) [0|14] \"\" MASTER\n");
     out.push_str(" SG_ crc : 56|8@1+ (1,0) [0|255] \"\" MASTER\n\n");
 
-    for k in 0..ACTION_FRAMES {
+    for k in (0..ACTION_FRAMES).filter(|_| !fd) {
         let _ = writeln!(
             out,
             "BO_ {} {}: 8 CONTROLLER",
@@ -188,7 +270,10 @@ pub fn generate(node: u8) -> String {
     }
     out.push('\n');
 
-    for k in 0..OBS_FRAMES {
+    if fd {
+        fd_messages(&mut out, node);
+    }
+    for k in (0..OBS_FRAMES).filter(|_| !fd) {
         let _ = writeln!(
             out,
             "BO_ {} {}: 8 PLANT",
@@ -229,6 +314,16 @@ pub fn generate(node: u8) -> String {
          the PDOs crc is byte 0 and alive_counter the low nibble of byte 1, in EMCY crc is byte 7 and \
          alive_counter the low nibble of byte 6. Raw -32768 in a 16-bit signal means not available.\";"
     );
+    if fd {
+        let _ = writeln!(
+            out,
+            "CM_ BO_ {} \"CAN FD layout (runtime/src/can/fd_messages.rs): observation values 0..22 in OBS_FD_0 \
+             (RPDO 1), 22..44 in OBS_FD_1 (RPDO 2), 48 bytes each, bytes 46-47 zero; the same E2E header \
+             as the classic frames, keyed by the identifier.\";",
+            rpdo_cob_id(node, 0)
+        );
+        fd_attributes(&mut out, node);
+    }
     let _ = writeln!(
         out,
         "VAL_ {status} state 0 \"boot\" 1 \"pre_operational\" 2 \"operational\" 3 \"safe_stop\" 4 \"fault\" ;"

@@ -12,6 +12,16 @@ fn committed_dbc_matches_the_codec() {
 }
 
 #[test]
+fn committed_fd_dbc_matches_the_codec() {
+    let committed = include_str!("../../can/jaco_fd.dbc");
+    let fresh = dex_runtime::dbc::generate_fd(dex_runtime::ControllerConfig::default().node_id);
+    assert_eq!(
+        committed, fresh,
+        "can/jaco_fd.dbc is stale: run `cargo run -p dex-runtime --example make_dbc`"
+    );
+}
+
+#[test]
 fn committed_vectors_match_the_codec() {
     let committed = include_str!("../../tests/can/vectors.json");
     assert_eq!(
