@@ -1,7 +1,8 @@
 //! The wire as the bus thread sees it: frames offered to it wait until it is idle, then the one
 //! that wins arbitration (lowest [`wire::arbitration_key`], ties: the earlier offer) goes next and
-//! takes its bits over the bit rate ([`WireConfig`]). Each frame's timestamp is its end of frame
-//! (end of the intermission after it): when a receiver has it.
+//! takes its bits over the bit rate ([`WireConfig`]; an FD frame on a CAN FD wire its bits over
+//! the two bit rates, [`BusWire`] of [`crate::wire_fd`]). Each frame's timestamp is its end of
+//! frame (end of the intermission after it): when a receiver has it.
 //!
 //! The arbiter commits frames to the wire up to a horizon: the bus thread commits every frame that
 //! has started by the wall clock (real time), or everything offered so far (lockstep: bus time is
@@ -11,7 +12,12 @@
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap};
 
-use crate::wire::{self, WireConfig};
+use dex_runtime::can::{AnyFrame, FdFrame};
+
+use crate::wire;
+#[cfg(doc)]
+use crate::wire::WireConfig;
+use crate::wire_fd::BusWire;
 
 /// A frame given its slot on the wire.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -31,14 +37,15 @@ pub struct OnWire<T> {
 struct Waiting<T> {
     offered_ns: u64,
     key: u32,
-    bits: u32,
+    /// Its time on the wire.
+    ns: u64,
     item: T,
 }
 
 /// Frames waiting for one wire, and when it is next idle.
 #[derive(Debug)]
 pub struct Arbiter<T> {
-    wire: WireConfig,
+    wire: BusWire,
     /// Offers not yet in arbitration, by offer time.
     future: BinaryHeap<Reverse<(u64, u64)>>,
     /// Offers in arbitration (offered by the wire's next idle), by (key, offer time, order).
@@ -50,8 +57,9 @@ pub struct Arbiter<T> {
 }
 
 impl<T> Arbiter<T> {
-    /// An idle wire.
-    pub fn new(wire: WireConfig) -> Self {
+    /// An idle wire: classic ([`WireConfig`]) or CAN FD ([`BusWire`]).
+    pub fn new(wire: impl Into<BusWire>) -> Self {
+        let wire = wire.into();
         Arbiter {
             wire,
             future: BinaryHeap::new(),
@@ -63,7 +71,7 @@ impl<T> Arbiter<T> {
     }
 
     /// The wire's settings.
-    pub fn wire(&self) -> WireConfig {
+    pub fn wire(&self) -> BusWire {
         self.wire
     }
 
@@ -77,15 +85,35 @@ impl<T> Arbiter<T> {
         self.waiting.len()
     }
 
-    /// Offers `frame` (carried as `item`) to the wire at `offered_ns`.
+    /// Offers the classic frame `frame` (carried as `item`) to the wire at `offered_ns`.
     pub fn offer(&mut self, offered_ns: u64, frame: &impl embedded_can::Frame, item: T) {
+        let ns = self.wire.nominal.frame_ns(frame);
+        self.offer_timed(offered_ns, wire::arbitration_key(frame), ns, item);
+    }
+
+    /// Offers the FD frame `frame` at `offered_ns`: it arbitrates on its identifier as a classic
+    /// data frame does (RRS dominant) and takes its bits over the two bit rates.
+    pub fn offer_fd(&mut self, offered_ns: u64, frame: &FdFrame, item: T) {
+        let ns = self.wire.fd_frame_ns(frame);
+        self.offer_timed(offered_ns, wire::arbitration_key(frame), ns, item);
+    }
+
+    /// Offers a classic or an FD frame ([`Arbiter::offer`], [`Arbiter::offer_fd`]).
+    pub fn offer_any(&mut self, offered_ns: u64, frame: &AnyFrame, item: T) {
+        match frame {
+            AnyFrame::Classic(f) => self.offer(offered_ns, f, item),
+            AnyFrame::Fd(f) => self.offer_fd(offered_ns, f, item),
+        }
+    }
+
+    fn offer_timed(&mut self, offered_ns: u64, key: u32, ns: u64, item: T) {
         self.seq += 1;
         self.waiting.insert(
             self.seq,
             Waiting {
                 offered_ns,
-                key: wire::arbitration_key(frame),
-                bits: self.wire.bits(frame),
+                key,
+                ns,
                 item,
             },
         );
@@ -120,7 +148,7 @@ impl<T> Arbiter<T> {
         }
         let (_, _, seq) = self.ready.pop_first()?;
         let w = self.waiting.remove(&seq)?;
-        let end = start + wire::bits_ns(w.bits, self.wire.bitrate);
+        let end = start + w.ns;
         self.idle_from_ns = end;
         Some(OnWire {
             offered_ns: w.offered_ns,
@@ -139,6 +167,7 @@ impl<T> Arbiter<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::wire::WireConfig;
     use dex_runtime::can::CanFrame;
 
     fn frame(id: u16, data: &[u8]) -> CanFrame {
@@ -188,6 +217,38 @@ mod tests {
         );
         assert_eq!(rest[0].start_ns, first[0].end_ns, "no pre-emption");
         assert_eq!(rest[1].start_ns, rest[0].end_ns);
+    }
+
+    #[test]
+    fn fd_frames_take_their_bits_over_two_rates_and_arbitrate_with_classic_ones() {
+        let fd = BusWire {
+            nominal: WireConfig {
+                bitrate: 1_000_000,
+                stuffing: wire::Stuffing::WorstCase,
+            },
+            data_bitrate: Some(5_000_000),
+        };
+        let mut a = Arbiter::new(fd);
+        let obs = FdFrame::standard(0x310, &[0; 48]).expect("48 bytes");
+        let act = FdFrame::standard(0x190, &[0; 20]).expect("20 bytes");
+        a.offer_fd(0, &obs, "observation");
+        a.offer(0, &frame(0x700, &[5]), "heartbeat");
+        a.offer_fd(0, &act, "action");
+        let on = a.commit_until(u64::MAX);
+        assert_eq!(
+            on.iter().map(|o| o.item).collect::<Vec<_>>(),
+            ["action", "observation", "heartbeat"]
+        );
+        let bits = crate::wire_fd::fd_bits(false, 48, true);
+        assert_eq!(
+            on[1].end_ns - on[1].start_ns,
+            wire::bits_ns(bits.nominal, 1_000_000) + wire::bits_ns(bits.data, 5_000_000)
+        );
+        assert_eq!(on[1].start_ns, on[0].end_ns);
+        assert_eq!(
+            on[2].end_ns - on[2].start_ns,
+            wire::bits_ns(wire::worst_case_bits(1), 1_000_000)
+        );
     }
 
     #[test]

@@ -40,13 +40,16 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use dex_runtime::can::CanFrame;
+use dex_runtime::can::{AnyFrame, CanFrame, FdFrame};
 use embedded_can::{Frame, Id};
 
 use crate::wire::WireConfig;
+use crate::wire_fd::BusWire;
 
 use crate::arbitration::{Arbiter, OnWire};
-use crate::protocol::{Framer, Request, candump_line, error_message, frame_message, parse_request};
+use crate::protocol::{
+    Framer, Request, any_frame_message, candump_any_line, error_message, parse_request,
+};
 
 /// Linux `CAN_ERR_BUSOFF` class bit, sent as `< error 040 TS >` when bus-off starts.
 pub const ERR_BUSOFF: u32 = 0x040;
@@ -108,6 +111,11 @@ pub struct BusConfig {
     /// Time on the wire: bit rate and stuffing of every frame, arbitration by identifier,
     /// end-of-frame timestamps. `None`: untimed (a frame's timestamp is when it arrived).
     pub wire: Option<WireConfig>,
+    /// CAN FD (`hil-sim bus --fd --data-bitrate D`): the data-phase bit rate. The bus then carries
+    /// FD frames (`< fdsend >`, delivered as `< fdframe >`) beside classic ones, each FD frame
+    /// timed over the two bit rates ([`BusWire`]). `None`: a classic bus, which ignores FD frames
+    /// (counted in `unknown_messages`).
+    pub fd_data_bitrate: Option<u32>,
 }
 
 impl Default for BusConfig {
@@ -120,6 +128,7 @@ impl Default for BusConfig {
             channel: "vcan0".to_string(),
             send_buffer: None,
             wire: None,
+            fd_data_bitrate: None,
         }
     }
 }
@@ -268,7 +277,7 @@ enum Event {
     },
     Frame {
         client: u64,
-        frame: CanFrame,
+        frame: AnyFrame,
     },
     Control {
         client: Option<u64>,
@@ -292,7 +301,7 @@ struct Client {
 }
 
 /// A frame on its way over the wire: who sent it.
-type Carried = (u64, CanFrame);
+type Carried = (u64, AnyFrame);
 
 #[derive(PartialEq, Eq, PartialOrd, Ord)]
 struct Delayed {
@@ -302,7 +311,7 @@ struct Delayed {
 }
 
 #[derive(PartialEq, Eq)]
-struct CanFrameOrd(CanFrame);
+struct CanFrameOrd(AnyFrame);
 impl PartialOrd for CanFrameOrd {
     fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
         Some(self.cmp(other))
@@ -375,7 +384,12 @@ impl Bus {
             vnow: 0,
             log,
             stats: BusStats::default(),
-            arbiter: cfg.wire.map(Arbiter::new),
+            arbiter: cfg.wire.map(|nominal| {
+                Arbiter::new(BusWire {
+                    nominal,
+                    data_bitrate: cfg.fd_data_bitrate,
+                })
+            }),
             in_flight: VecDeque::new(),
             event_ns: 0,
         };
@@ -552,7 +566,14 @@ fn reader_loop(client: u64, mut stream: TcpStream, events: Sender<Event>) {
             batch.push(match parse_request(&text) {
                 Request::Open(_) => Event::Open { client },
                 Request::RawMode => Event::Subscribe { client },
-                Request::Send(frame) => Event::Frame { client, frame },
+                Request::Send(frame) => Event::Frame {
+                    client,
+                    frame: AnyFrame::Classic(frame),
+                },
+                Request::SendFd(frame) => Event::Frame {
+                    client,
+                    frame: AnyFrame::Fd(frame),
+                },
                 Request::Control(words) => Event::Control {
                     client: Some(client),
                     command: parse_control(&words),
@@ -650,7 +671,7 @@ impl BusThread {
 
     /// Hands a frame to the wire at bus time `at_us` (a timed bus: it moves with the next
     /// [`BusThread::pump`]), or puts it on the bus at once.
-    fn offer(&mut self, from: u64, frame: CanFrame, at_us: u64) {
+    fn offer(&mut self, from: u64, frame: AnyFrame, at_us: u64) {
         let virtual_clock = self.cfg.clock == BusClock::Virtual;
         let txtime = self.clients.get(&from).map_or(0, |c| c.txtime);
         let Some(arbiter) = self.arbiter.as_mut() else {
@@ -665,7 +686,7 @@ impl BusThread {
         if arbiter.waiting() > 0 || arbiter.idle_from_ns() > at_ns {
             self.stats.wire_waited += 1;
         }
-        arbiter.offer(at_ns, &frame, (from, frame));
+        arbiter.offer_any(at_ns, &frame, (from, frame));
         self.stats.wire_queue_peak = self.stats.wire_queue_peak.max(arbiter.waiting() as u64);
     }
 
@@ -902,7 +923,12 @@ impl BusThread {
         }
     }
 
-    fn accept_frame(&mut self, from: u64, mut frame: CanFrame) {
+    fn accept_frame(&mut self, from: u64, mut frame: AnyFrame) {
+        if frame.is_fd() && self.cfg.fd_data_bitrate.is_none() {
+            // A classic bus carries no FD frames.
+            self.stats.unknown_messages += 1;
+            return;
+        }
         let now = self.now();
         if self.busoff_until.is_some_and(|until| now < until) {
             self.stats.busoff_dropped += 1;
@@ -927,13 +953,21 @@ impl BusThread {
                 }
                 FaultKind::Corrupt => {
                     self.stats.fault_corrupted += 1;
-                    let mut data = [0u8; 8];
+                    let mut data = [0u8; 64];
                     let len = frame.data().len();
                     data[..len].copy_from_slice(frame.data());
                     if len > 0 {
                         data[len - 1] ^= 0x01;
                     }
-                    frame = CanFrame::new(frame.id(), &data[..len]).unwrap_or(frame);
+                    frame = match frame {
+                        AnyFrame::Classic(f) => {
+                            CanFrame::new(f.id(), &data[..len]).map_or(frame, AnyFrame::Classic)
+                        }
+                        AnyFrame::Fd(f) => {
+                            FdFrame::new_fd(f.id(), &data[..len], f.bit_rate_switch())
+                                .map_or(frame, AnyFrame::Fd)
+                        }
+                    };
                 }
                 FaultKind::Delay(us) => {
                     self.stats.fault_delayed += 1;
@@ -966,12 +1000,12 @@ impl BusThread {
         self.pump();
     }
 
-    fn put_on_bus(&mut self, from: u64, frame: &CanFrame, ts: u64) {
+    fn put_on_bus(&mut self, from: u64, frame: &AnyFrame, ts: u64) {
         self.stats.frames_on_bus += 1;
         if let Some(log) = self.log.as_mut() {
-            let _ = writeln!(log, "{}", candump_line(&self.cfg.channel, frame, ts));
+            let _ = writeln!(log, "{}", candump_any_line(&self.cfg.channel, frame, ts));
         }
-        let line = frame_message(frame, ts);
+        let line = any_frame_message(frame, ts);
         let mut gone = Vec::new();
         for (&id, c) in self.clients.iter_mut() {
             if id == from || !c.subscribed {

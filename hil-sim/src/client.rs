@@ -9,10 +9,10 @@ use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 
-use dex_runtime::can::CanFrame;
+use dex_runtime::can::{CanFrame, FdFrame};
 use embedded_can::Frame;
 
-use crate::protocol::{Framer, Reply, parse_reply, send_message};
+use crate::protocol::{Framer, Reply, fdsend_message, parse_reply, send_message};
 
 /// Errors of a bus connection.
 #[derive(Debug, thiserror::Error)]
@@ -47,6 +47,8 @@ impl embedded_can::Error for ClientError {
 pub enum Received {
     /// A data frame and its bus time (microseconds).
     Frame(CanFrame, u64),
+    /// A CAN FD data frame and its bus time (a bus started with `--fd`).
+    Fd(FdFrame, u64),
     /// An error frame (Linux `can/error.h` class bits) and its bus time.
     Error(u32, u64),
 }
@@ -126,6 +128,11 @@ impl BusClient {
         self.out.push_str(&send_message(frame));
     }
 
+    /// Queues an FD frame (`< fdsend ... >`; a bus without `--fd` ignores it).
+    pub fn queue_fd(&mut self, frame: &FdFrame) {
+        self.out.push_str(&fdsend_message(frame));
+    }
+
     /// Queues one raw protocol line (a control verb among the frames: written with them).
     pub fn queue_line(&mut self, line: &str) {
         self.out.push_str(line);
@@ -147,6 +154,7 @@ impl BusClient {
             let left = deadline.saturating_duration_since(Instant::now());
             match self.next_reply(left)? {
                 Some(Reply::Frame(f, ts)) => return Ok(Some(Received::Frame(f, ts))),
+                Some(Reply::FdFrame(f, ts)) => return Ok(Some(Received::Fd(f, ts))),
                 Some(Reply::Error(c, ts)) => return Ok(Some(Received::Error(c, ts))),
                 Some(_) => continue,
                 None => return Ok(None),

@@ -10,16 +10,17 @@
 //! frame is end of frame less the frame's time on the wire ([`WireConfig`]), so the trace must
 //! come from a bus with the same wire settings; the compute is given (the lockstep node's
 //! [`crate::compute::StepCompute`]), and a trace whose loop is shorter than its wire time and that
-//! compute is refused.
+//! compute is refused. A CAN FD bus's trace ([`analyse_any`]) in the FD layout: the observation's
+//! two FD frames and the one FD action frame, each timed over the two bit rates ([`BusWire`]).
 
-use dex_runtime::can::CanFrame;
-use dex_runtime::can::messages::{
-    ACTION_FRAMES, OBS_FRAMES, action_frame_index, observation_frame_index,
-};
+use dex_runtime::can::fd_messages::{fd_action_frame_index, fd_observation_frame_index};
+use dex_runtime::can::messages::{action_frame_index, observation_frame_index};
+use dex_runtime::can::{AnyFrame, CanFrame, FrameLayout};
 
 use crate::bench::Percentiles;
 use crate::node::SYNC_ID;
 use crate::wire::WireConfig;
+use crate::wire_fd::BusWire;
 
 /// Rounding allowed between the trace's microsecond timestamps and the nanosecond wire model.
 const TOLERANCE_NS: u64 = 3_000;
@@ -134,6 +135,20 @@ pub fn parse_trace(text: &str) -> Result<Vec<(u64, CanFrame)>, LatencyError> {
         .collect()
 }
 
+/// Reads a candump log with classic and FD frames (as a `--fd` bus writes it with `--log`).
+pub fn parse_trace_any(text: &str) -> Result<Vec<(u64, AnyFrame)>, LatencyError> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            crate::protocol::parse_candump_any(l).ok_or_else(|| LatencyError::Parse {
+                line: i + 1,
+                text: l.to_string(),
+            })
+        })
+        .collect()
+}
+
 /// The observation being assembled, and its answer.
 #[derive(Debug, Default)]
 struct Cycle {
@@ -152,8 +167,35 @@ pub fn analyse(
     wire: WireConfig,
     compute_ns: u64,
 ) -> Result<LatencyReport, LatencyError> {
-    let all_obs = (1u32 << OBS_FRAMES) - 1;
-    let all_act = (1u32 << ACTION_FRAMES) - 1;
+    let trace: Vec<(u64, AnyFrame)> = trace
+        .iter()
+        .map(|(ts, f)| (*ts, AnyFrame::Classic(*f)))
+        .collect();
+    analyse_any(&trace, node, FrameLayout::Classic, wire.into(), compute_ns)
+}
+
+/// [`analyse`] for a trace of classic and FD frames whose controller speaks `layout`, on the wire
+/// `wire` (an FD frame's time over its two bit rates).
+pub fn analyse_any(
+    trace: &[(u64, AnyFrame)],
+    node: u8,
+    layout: FrameLayout,
+    wire: BusWire,
+    compute_ns: u64,
+) -> Result<LatencyReport, LatencyError> {
+    let all_obs = (1u32 << layout.observation_frames()) - 1;
+    let all_act = (1u32 << layout.action_frames()) - 1;
+    // A frame of the layout's kind on one of its identifiers.
+    let observation = |frame: &AnyFrame, id: u16| match (layout, frame) {
+        (FrameLayout::Classic, AnyFrame::Classic(_)) => observation_frame_index(node, id),
+        (FrameLayout::Fd, AnyFrame::Fd(_)) => fd_observation_frame_index(node, id),
+        _ => None,
+    };
+    let action = |frame: &AnyFrame, id: u16| match (layout, frame) {
+        (FrameLayout::Classic, AnyFrame::Classic(_)) => action_frame_index(node, id),
+        (FrameLayout::Fd, AnyFrame::Fd(_)) => fd_action_frame_index(node, id),
+        _ => None,
+    };
     let mut report = LatencyReport::default();
     let mut cycle: Option<Cycle> = None;
     // Start of frame of the SYNC that ended just now, and its end.
@@ -166,7 +208,7 @@ pub fn analyse(
             sync = Some((start_ns, end_ns));
             continue;
         }
-        if let Some(k) = id.and_then(|id| observation_frame_index(node, id)) {
+        if let Some(k) = id.and_then(|id| observation(frame, id)) {
             let fresh = cycle.as_ref().is_none_or(|c| c.obs_mask == all_obs);
             if fresh {
                 if cycle.as_ref().is_some_and(|c| c.act_mask != all_act) {
@@ -185,7 +227,7 @@ pub fn analyse(
                 c.obs_mask |= 1 << k;
                 c.obs_wire_ns += wire.frame_ns(frame);
             }
-        } else if let Some(k) = id.and_then(|id| action_frame_index(node, id))
+        } else if let Some(k) = id.and_then(|id| action(frame, id))
             && let Some(c) = cycle.as_mut()
             && c.obs_mask == all_obs
             && c.act_mask != all_act
@@ -228,7 +270,7 @@ mod tests {
     use super::*;
     use crate::arbitration::Arbiter;
     use crate::wire::Stuffing;
-    use dex_runtime::can::messages::{rpdo_cob_id, tpdo_cob_id};
+    use dex_runtime::can::messages::{ACTION_FRAMES, OBS_FRAMES, rpdo_cob_id, tpdo_cob_id};
 
     const NODE: u8 = 0x10;
     const WIRE: WireConfig = WireConfig {

@@ -13,9 +13,11 @@ use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
 use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
 use dex_hil_sim::flash::{Transfer, flash};
-use dex_hil_sim::node::{NodeTiming, TimeMode, spawn_controller_node};
+use dex_hil_sim::node::{NodeConfig, NodeTiming, TimeMode, spawn_controller_node};
 use dex_hil_sim::plant::{Plant, PlantNode, PlantTiming, SyntheticPlant};
 use dex_hil_sim::wire::{Stuffing, WireConfig};
+use dex_hil_sim::wire_fd::BusWire;
+use dex_runtime::can::FrameLayout;
 
 #[derive(Parser)]
 #[command(
@@ -56,6 +58,10 @@ enum Command {
         /// round-trip decimal, as `trainer eval --actions` writes them).
         #[arg(long)]
         actions: Option<PathBuf>,
+        /// The CAN FD frame layout (the bus started with `--fd`, its controller in the FD
+        /// layout): the observation in two FD frames, the action in one.
+        #[arg(long)]
+        fd: bool,
     },
     /// Flash a policy file into a controller node on a bus (`hil-sim bus --controller`): CANopen
     /// program download (SDO into 0x1F50:1, start on 0x1F51:1, 0x1F56:1 checked against the file's
@@ -215,9 +221,52 @@ struct WireArgs {
     /// The controller's clock in Hz, one instruction per cycle (the STM32F4's 168 MHz).
     #[arg(long, default_value_t = DEFAULT_CPU_HZ)]
     cpu_hz: u64,
+    /// CAN FD: the bus carries FD frames (socketcand's `< fdsend >` / `< fdframe >`), each over
+    /// the nominal `--bitrate` and the data bit rate; the controller node and the plant speak the
+    /// FD layout (observation in two FD frames, action in one).
+    #[arg(long)]
+    fd: bool,
+    /// CAN FD's data-phase bit rate in bit/s (with `--fd`; default 2,000,000), at least the
+    /// nominal `--bitrate`.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=8_000_000))]
+    data_bitrate: Option<u32>,
 }
 
+/// CAN FD's data bit rate when `--fd` comes without `--data-bitrate`.
+const DEFAULT_DATA_BITRATE: u32 = 2_000_000;
+
 impl WireArgs {
+    /// CAN FD's data bit rate, `None` on a classic bus; refuses `--data-bitrate` without `--fd`
+    /// and a data bit rate below the nominal one.
+    fn fd_data_bitrate(&self) -> Result<Option<u32>> {
+        match (self.fd, self.data_bitrate) {
+            (false, None) => Ok(None),
+            (false, Some(d)) => bail!(
+                "--data-bitrate {d} needs --fd: a classic CAN bus has one bit rate (--bitrate)"
+            ),
+            (true, d) => {
+                let d = d.unwrap_or(DEFAULT_DATA_BITRATE);
+                if d < self.bitrate {
+                    bail!(
+                        "--data-bitrate {d} is below the nominal --bitrate {}: CAN FD's data \
+                         phase runs at least as fast as its arbitration phase",
+                        self.bitrate
+                    );
+                }
+                Ok(Some(d))
+            }
+        }
+    }
+
+    /// The frame layout of the controller node and the plant.
+    fn layout(&self) -> FrameLayout {
+        if self.fd {
+            FrameLayout::Fd
+        } else {
+            FrameLayout::Classic
+        }
+    }
+
     /// The wire, or `None` when untimed.
     fn wire(&self) -> Option<WireConfig> {
         (self.bitrate > 0).then_some(WireConfig {
@@ -312,7 +361,8 @@ fn main() -> Result<()> {
             connect,
             episodes,
             actions,
-        } => plant_command(connect, &episodes, actions),
+            fd,
+        } => plant_command(connect, &episodes, actions, fd),
         Command::Run(args) => run_command(&args),
         Command::Latency(args) => latency_command(&args),
         Command::Flash {
@@ -352,6 +402,7 @@ fn bus_command(args: BusArgs) -> Result<()> {
         queue_depth: args.queue,
         send_buffer: args.sndbuf,
         wire: args.wire.wire(),
+        fd_data_bitrate: args.wire.fd_data_bitrate()?,
         clock: if args.lockstep {
             BusClock::Virtual
         } else {
@@ -383,10 +434,13 @@ fn bus_command(args: BusArgs) -> Result<()> {
             let handle = spawn_controller_node(
                 bus.addr(),
                 bytes.clone(),
-                dex_runtime::ControllerConfig {
-                    node_id,
-                    watchdog_cycles: args.watchdog_cycles,
-                    ..dex_runtime::ControllerConfig::default()
+                NodeConfig {
+                    controller: dex_runtime::ControllerConfig {
+                        node_id,
+                        watchdog_cycles: args.watchdog_cycles,
+                        ..dex_runtime::ControllerConfig::default()
+                    },
+                    layout: args.wire.layout(),
                 },
                 timing,
                 Arc::clone(&stop),
@@ -537,6 +591,7 @@ fn closed_loop(
         },
         log,
         wire: wire.wire(),
+        fd_data_bitrate: wire.fd_data_bitrate()?,
         ..BusConfig::default()
     })?;
     let stop = Arc::new(AtomicBool::new(false));
@@ -549,7 +604,10 @@ fn closed_loop(
     let node = spawn_controller_node(
         bus.addr(),
         Some(bytes),
-        dex_runtime::ControllerConfig::default(),
+        NodeConfig {
+            controller: dex_runtime::ControllerConfig::default(),
+            layout: wire.layout(),
+        },
         wire.node_timing(mode)?,
         Arc::clone(&stop),
         Some(Arc::clone(&status)),
@@ -560,7 +618,7 @@ fn closed_loop(
         PlantTiming::Lockstep
     };
     let result = (|| -> Result<(u32, f64)> {
-        let mut node = PlantNode::connect(&bus, timing, 0x10)?;
+        let mut node = PlantNode::connect(&bus, timing, 0x10)?.with_layout(wire.layout());
         node.start_controller()?;
         let r = node.episodes(
             plant.as_mut(),
@@ -589,9 +647,14 @@ fn closed_loop(
 }
 
 fn latency_command(args: &LatencyArgs) -> Result<()> {
-    let Some(wire) = args.wire.wire() else {
+    let Some(nominal) = args.wire.wire() else {
         bail!("latency in bus time needs a timed wire: --bitrate above 0");
     };
+    let wire = BusWire {
+        nominal,
+        data_bitrate: args.wire.fd_data_bitrate()?,
+    };
+    let layout = args.wire.layout();
     let compute = args.wire.compute()?;
     let text = match &args.trace {
         Some(path) => {
@@ -625,14 +688,22 @@ fn latency_command(args: &LatencyArgs) -> Result<()> {
             text
         }
     };
-    let trace = dex_hil_sim::latency::parse_trace(&text)?;
-    let report =
-        dex_hil_sim::latency::analyse(&trace, args.node, wire, compute.ns().div_ceil(1000) * 1000)?;
+    let trace = dex_hil_sim::latency::parse_trace_any(&text)?;
+    let report = dex_hil_sim::latency::analyse_any(
+        &trace,
+        args.node,
+        layout,
+        wire,
+        compute.ns().div_ceil(1000) * 1000,
+    )?;
+    let rates = match wire.data_bitrate {
+        Some(d) => format!("CAN FD {} / {} kbit/s", nominal.bitrate / 1000, d / 1000),
+        None => format!("classic {} kbit/s", nominal.bitrate / 1000),
+    };
     println!(
-        "wire: classic {} kbit/s, {} stuffing; controller compute: {} instructions per step at {} MHz \
+        "wire: {rates}, {} stuffing; controller compute: {} instructions per step at {} MHz \
          = {:.3} ms",
-        wire.bitrate / 1000,
-        match wire.stuffing {
+        match nominal.stuffing {
             Stuffing::Exact => "exact",
             Stuffing::WorstCase => "worst-case",
         },
@@ -658,10 +729,16 @@ fn latency_command(args: &LatencyArgs) -> Result<()> {
     println!("| observation to action | {}", ms(report.total_us()));
     println!("| wire time (both groups) | {}", ms(report.wire_us()));
     println!(
-        "| - observation (15 frames) | {}",
+        "| - observation ({} frames) | {}",
+        layout.observation_frames(),
         ms(report.observation_wire_us())
     );
-    println!("| - actions (3 frames) | {}", ms(report.action_wire_us()));
+    println!(
+        "| - actions ({} frame{}) | {}",
+        layout.action_frames(),
+        if layout.action_frames() == 1 { "" } else { "s" },
+        ms(report.action_wire_us())
+    );
     println!("| controller compute | {}", ms(report.compute_us()));
     println!("| queuing | {}", ms(report.queuing_us()));
     Ok(())
@@ -703,11 +780,22 @@ fn print_episode(e: u32, r: &dex_hil_sim::plant::EpisodeReport) {
 }
 
 /// `hil-sim plant`: lockstep episodes against a controller on another process's bus.
-fn plant_command(addr: SocketAddr, ep: &EpisodeArgs, actions: Option<PathBuf>) -> Result<()> {
+fn plant_command(
+    addr: SocketAddr,
+    ep: &EpisodeArgs,
+    actions: Option<PathBuf>,
+    fd: bool,
+) -> Result<()> {
     let (episodes, seed) = (ep.episodes, ep.seed);
     let mut plant = make_plant(ep.plant, &ep.task, ep.steps)?;
+    let layout = if fd {
+        FrameLayout::Fd
+    } else {
+        FrameLayout::Classic
+    };
     let mut node = PlantNode::connect_remote(addr, PlantTiming::Lockstep, 0x10)
-        .with_context(|| format!("cannot reach the bus at {addr}"))?;
+        .with_context(|| format!("cannot reach the bus at {addr}"))?
+        .with_layout(layout);
     node.start_controller()?;
     let r = node.episodes(plant.as_mut(), episodes, seed, true, &mut print_episode)?;
     let successes = r.successes;

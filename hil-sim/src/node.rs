@@ -16,6 +16,10 @@
 //! poll through `Controller::poll_slots`, which also serve the CANopen SDO server on
 //! `0x600 + node` (program download into 0x1F50, program control 0x1F51: [`crate::flash`]).
 //! Nothing is allocated per flash.
+//!
+//! Frame layout ([`NodeConfig::layout`]): classic, or on a CAN FD bus (`hil-sim bus --fd`) the
+//! FD layout of `dex_runtime::can::fd_messages` (`Controller::new_fd`): the observation in two
+//! FD frames, the action in one; the node's other frames stay classic.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -23,6 +27,7 @@ use std::time::{Duration, Instant};
 
 use dex_policy::PolicyView;
 use dex_runtime::aligned::aligned_copy;
+use dex_runtime::can::{AnyFrame, FdFrame, FrameLayout, TxFrame};
 use dex_runtime::canopen::SdoAbort;
 use dex_runtime::canopen::program::PROGRAM_CONTROL;
 use dex_runtime::canopen::sdo::abort_code;
@@ -73,6 +78,28 @@ impl From<TimeMode> for NodeTiming {
     }
 }
 
+/// The controller node's settings: the controller's, and its frame layout.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodeConfig {
+    /// The controller's settings (node id, period, watchdog, envelope).
+    pub controller: ControllerConfig,
+    /// Classic frames, or the CAN FD layout (on a bus started with `--fd`).
+    pub layout: FrameLayout,
+}
+
+impl From<ControllerConfig> for NodeConfig {
+    /// The classic layout.
+    fn from(controller: ControllerConfig) -> Self {
+        NodeConfig {
+            controller,
+            layout: FrameLayout::Classic,
+        }
+    }
+}
+
+/// The node's controller: its outbox holds classic and FD frames.
+type NodeController = Controller<'static, NODE_WIDTH, AnyFrame>;
+
 /// Errors of the controller node.
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
@@ -118,8 +145,8 @@ pub struct NodeReport {
 
 /// One status line: state, fault, policy load result, bus-off, every diagnostic counter and the
 /// number of flashed files the controller refused at activation.
-pub fn status_line<const W: usize>(
-    c: &Controller<'_, W>,
+pub fn status_line<const W: usize, F: TxFrame>(
+    c: &Controller<'_, W, F>,
     load: &str,
     activation_failures: u64,
 ) -> String {
@@ -145,9 +172,12 @@ pub fn status_line<const W: usize>(
     )
 }
 
-fn send(port: &mut impl NodePort, out: &Outbox) -> Result<(), ClientError> {
+fn send(port: &mut impl NodePort, out: &Outbox<AnyFrame>) -> Result<(), ClientError> {
     for f in out {
-        port.queue(f);
+        match f {
+            AnyFrame::Classic(f) => port.queue(f),
+            AnyFrame::Fd(f) => port.queue_fd(f),
+        }
     }
     port.flush()
 }
@@ -165,16 +195,23 @@ struct FlashCounters {
 pub fn run_controller_node(
     port: &mut impl NodePort,
     policy: Option<&[u8]>,
-    cfg: ControllerConfig,
+    cfg: impl Into<NodeConfig>,
     timing: impl Into<NodeTiming>,
     stop: &AtomicBool,
     status: Option<Arc<Mutex<String>>>,
 ) -> Result<NodeReport, NodeError> {
+    let NodeConfig {
+        controller: cfg,
+        layout,
+    } = cfg.into();
     let mut storage = SlotStorage::new();
     let (a, b) = storage.regions();
     // Erased regions: no active slot yet.
     let mut slots = PolicySlots::mount(a, b).map_err(NodeError::Slots)?;
-    let mut controller = Controller::<'static, NODE_WIDTH>::new(cfg);
+    let mut controller = match layout {
+        FrameLayout::Classic => NodeController::new(cfg),
+        FrameLayout::Fd => NodeController::new_fd(cfg),
+    };
     let mut load_error = None;
     if let Some(p) = policy
         && let Err(e) = install(&mut controller, &mut slots, p)
@@ -187,7 +224,7 @@ pub fn run_controller_node(
         (None, Some(_)) => "loaded",
         (None, None) => "none",
     };
-    let publish = |c: &Controller<'_, NODE_WIDTH>, f: &FlashCounters| {
+    let publish = |c: &NodeController, f: &FlashCounters| {
         if let Some(slot) = status.as_ref()
             && let Ok(mut s) = slot.lock()
         {
@@ -222,7 +259,7 @@ pub fn run_controller_node(
 /// Writes `policy` into the inactive slot, verifies and activates it (the start-up policy): the
 /// controller's checks first, for a readable refusal.
 fn install(
-    controller: &mut Controller<'static, NODE_WIDTH>,
+    controller: &mut NodeController,
     slots: &mut PolicySlots<'_>,
     policy: &[u8],
 ) -> Result<(), String> {
@@ -243,14 +280,14 @@ fn install(
 /// The controller with its slots.
 struct Node<'a, 'r> {
     node_id: u8,
-    controller: &'a mut Controller<'static, NODE_WIDTH>,
+    controller: &'a mut NodeController,
     slots: &'a mut PolicySlots<'r>,
     counters: &'a mut FlashCounters,
 }
 
 /// Every frame goes to the controller with the slots (SDO requests included); refused
 /// activations are counted.
-fn dispatch(node: &mut Node<'_, '_>, frame: &CanFrame, clock: &impl Clock) -> Outbox {
+fn dispatch(node: &mut Node<'_, '_>, frame: &impl Frame, clock: &impl Clock) -> Outbox<AnyFrame> {
     let out = node.controller.on_frame_slots(frame, clock, node.slots);
     let response = SDO_RESPONSE_BASE + u16::from(node.node_id);
     let control = PROGRAM_CONTROL.to_le_bytes();
@@ -268,7 +305,7 @@ fn dispatch(node: &mut Node<'_, '_>, frame: &CanFrame, clock: &impl Clock) -> Ou
 
 /// Hands an error frame to the controller: bus-off, then (if the same frame says so) the restart;
 /// other error classes are not the controller's business. Returns what to send, in order.
-fn on_error_frame(controller: &mut Controller<'static, NODE_WIDTH>, class: u32) -> [Outbox; 2] {
+fn on_error_frame(controller: &mut NodeController, class: u32) -> [Outbox<AnyFrame>; 2] {
     let off = if class & ERR_BUSOFF != 0 {
         controller.on_bus_off()
     } else {
@@ -287,7 +324,7 @@ fn real_time_loop(
     node: &mut Node<'_, '_>,
     period_us: u32,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashCounters),
+    publish: &dyn Fn(&NodeController, &FlashCounters),
 ) -> Result<(), ClientError> {
     let clock = WallClock::new();
     let period = u64::from(period_us.max(1));
@@ -312,6 +349,13 @@ fn real_time_loop(
                     publish(node.controller, node.counters);
                 }
             }
+            Some(Received::Fd(frame, _)) => {
+                let out = dispatch(node, &frame, &clock);
+                send(port, &out)?;
+                if !out.is_empty() {
+                    publish(node.controller, node.counters);
+                }
+            }
             Some(Received::Error(class, _)) => {
                 for out in on_error_frame(node.controller, class) {
                     send(port, &out)?;
@@ -329,12 +373,18 @@ fn lockstep_loop(
     node: &mut Node<'_, '_>,
     step_compute_us: u64,
     stop: &AtomicBool,
-    publish: &dyn Fn(&Controller<'static, NODE_WIDTH>, &FlashCounters),
+    publish: &dyn Fn(&NodeController, &FlashCounters),
 ) -> Result<(), ClientError> {
     let clock = MockClock::new(0);
     while !stop.load(Ordering::Relaxed) {
-        match port.receive_timeout(Duration::from_millis(50))? {
-            Some(Received::Frame(frame, ts)) => {
+        let received = match port.receive_timeout(Duration::from_millis(50))? {
+            Some(Received::Frame(frame, ts)) => Some((Some(AnyFrame::Classic(frame)), ts, 0)),
+            Some(Received::Fd(frame, ts)) => Some((Some(AnyFrame::Fd(frame)), ts, 0)),
+            Some(Received::Error(class, ts)) => Some((None, ts, class)),
+            None => None,
+        };
+        match received {
+            Some((Some(frame), ts, _)) => {
                 clock.set(ts);
                 let evaluations = node.controller.diagnostics().evaluations;
                 let out = if frame.standard_id() == Some(SYNC_ID) {
@@ -349,7 +399,7 @@ fn lockstep_loop(
                 }
                 send(port, &out)?;
             }
-            Some(Received::Error(class, ts)) => {
+            Some((None, ts, class)) => {
                 clock.set(ts);
                 port.offer_at(ts);
                 for out in on_error_frame(node.controller, class) {
@@ -368,6 +418,11 @@ fn lockstep_loop(
 pub trait NodePort {
     /// Queues a frame for transmission.
     fn queue(&mut self, frame: &CanFrame);
+    /// Queues an FD frame for transmission (the FD layout's action). An interface without CAN FD
+    /// cannot send it: by default it is dropped, as a classic controller's driver refuses it.
+    fn queue_fd(&mut self, frame: &FdFrame) {
+        let _ = frame;
+    }
     /// Transmits everything queued.
     fn flush(&mut self) -> Result<(), ClientError>;
     /// The next frame or error frame, waiting at most `timeout`.
@@ -382,6 +437,10 @@ pub trait NodePort {
 impl NodePort for BusClient {
     fn queue(&mut self, frame: &CanFrame) {
         BusClient::queue(self, frame);
+    }
+
+    fn queue_fd(&mut self, frame: &FdFrame) {
+        BusClient::queue_fd(self, frame);
     }
 
     fn flush(&mut self) -> Result<(), ClientError> {
@@ -401,13 +460,14 @@ impl NodePort for BusClient {
 pub fn spawn_controller_node(
     addr: std::net::SocketAddr,
     policy: Option<Vec<u8>>,
-    cfg: ControllerConfig,
+    cfg: impl Into<NodeConfig>,
     timing: impl Into<NodeTiming>,
     stop: Arc<AtomicBool>,
     status: Option<Arc<Mutex<String>>>,
 ) -> Result<std::thread::JoinHandle<Result<NodeReport, NodeError>>, NodeError> {
     let mut port = BusClient::connect(addr, "vcan0")?;
     let timing = timing.into();
+    let cfg = cfg.into();
     std::thread::Builder::new()
         .name("controller-node".into())
         .spawn(move || {

@@ -3,16 +3,20 @@
 //!
 //! [`Plant`] is the simulation: [`SyntheticPlant`] (a kinematic stand-in with no physics, always
 //! available) or, with the `mujoco` feature, [`MujocoPlant`] (`dex-env`'s MuJoCo Jaco
-//! environment). [`PlantNode`] puts a plant on the bus and runs episodes in lockstep or in real time.
+//! environment). [`PlantNode`] puts a plant on the bus and runs episodes in lockstep or in real time,
+//! in the classic frame layout or, on a CAN FD bus, the FD layout ([`PlantNode::with_layout`]).
 
 use std::time::{Duration, Instant};
 
-use dex_runtime::can::CanFrame;
 use dex_runtime::can::e2e::{E2eReceiver, E2eSender, E2eStatus};
+use dex_runtime::can::fd_messages::{
+    FD_OBS_FRAMES, decode_action_fd, encode_observation_fd, fd_action_frame_index,
+};
 use dex_runtime::can::messages::{
     ACTION_FRAMES, EMCY_BASE_ID, HEARTBEAT_BASE_ID, NmtCommand, OBS_FRAMES, action_frame_index,
     decode_action_frame, encode_observation, nmt_frame,
 };
+use dex_runtime::can::{CanFrame, FdFrame, FrameLayout};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 use embedded_can::Frame;
 
@@ -247,6 +251,7 @@ pub struct EpisodesReport {
 #[derive(Debug, Clone)]
 pub struct ActionAssembler {
     node: u8,
+    layout: FrameLayout,
     rx: [E2eReceiver; ACTION_FRAMES],
     sample: u8,
     mask: u8,
@@ -258,10 +263,16 @@ pub struct ActionAssembler {
 }
 
 impl ActionAssembler {
-    /// An assembler for the action frames of controller `node`.
+    /// An assembler for the classic action frames of controller `node`.
     pub fn new(node: u8) -> Self {
+        Self::with_layout(node, FrameLayout::Classic)
+    }
+
+    /// An assembler for the action frames of controller `node` in `layout`.
+    pub fn with_layout(node: u8, layout: FrameLayout) -> Self {
         ActionAssembler {
             node,
+            layout,
             rx: [E2eReceiver::new(3); ACTION_FRAMES],
             sample: 0xFF,
             mask: 0,
@@ -271,8 +282,37 @@ impl ActionAssembler {
         }
     }
 
-    /// Feeds one frame; returns the sample nibble when it completed an action.
+    /// Feeds one FD frame (the FD layout's action frame); returns its sample nibble when it is
+    /// a valid action. Rejected (counted): a bad E2E check, another length, a non-finite value.
+    pub fn push_fd(&mut self, frame: &FdFrame) -> Option<u8> {
+        if self.layout != FrameLayout::Fd {
+            return None;
+        }
+        let id = frame.standard_id()?;
+        let k = fd_action_frame_index(self.node, id)?;
+        let rx = self.rx.get_mut(k)?;
+        let mut values = [0.0; ACT_DIM];
+        if rx.check(id, frame.data()) != E2eStatus::Ok {
+            self.rejected += 1;
+            return None;
+        }
+        let Some(sample) = decode_action_fd(frame.data(), &mut values) else {
+            self.rejected += 1;
+            return None;
+        };
+        if !values.iter().all(|v| v.is_finite()) {
+            self.rejected += 1;
+            return None;
+        }
+        self.newest = Some((values, sample));
+        Some(sample)
+    }
+
+    /// Feeds one classic frame; returns the sample nibble when it completed an action.
     pub fn push(&mut self, frame: &CanFrame) -> Option<u8> {
+        if self.layout != FrameLayout::Classic {
+            return None;
+        }
         let id = frame.standard_id()?;
         let k = action_frame_index(self.node, id)?;
         let rx = self.rx.get_mut(k)?;
@@ -328,6 +368,7 @@ pub struct PlantNode<'b> {
     time: TimeSetter<'b>,
     timing: PlantTiming,
     node_id: u8,
+    layout: FrameLayout,
     tx: [E2eSender; OBS_FRAMES],
     actions: ActionAssembler,
     sample: u8,
@@ -377,6 +418,7 @@ impl<'b> PlantNode<'b> {
             time,
             timing,
             node_id,
+            layout: FrameLayout::Classic,
             tx: [E2eSender::default(); OBS_FRAMES],
             actions: ActionAssembler::new(node_id),
             sample: 0,
@@ -387,6 +429,15 @@ impl<'b> PlantNode<'b> {
             newest_at: 0,
             record: None,
         })
+    }
+
+    /// The plant in the frame layout `layout` (the controller's; default classic): on a CAN FD
+    /// bus, [`FrameLayout::Fd`] sends the observation in two FD frames and takes the action
+    /// from one.
+    pub fn with_layout(mut self, layout: FrameLayout) -> Self {
+        self.layout = layout;
+        self.actions = ActionAssembler::with_layout(self.node_id, layout);
+        self
     }
 
     /// Emergency codes seen so far.
@@ -410,8 +461,16 @@ impl<'b> PlantNode<'b> {
 
     /// Handles one received frame; returns the sample nibble of an action it completed.
     fn absorb(&mut self, r: Received) -> Option<u8> {
-        let Received::Frame(f, _) = r else {
-            return None;
+        let f = match r {
+            Received::Frame(f, _) => f,
+            Received::Fd(f, _) => {
+                let done = self.actions.push_fd(&f);
+                if done.is_some() {
+                    self.newest_at = self.step_index;
+                }
+                return done;
+            }
+            Received::Error(..) => return None,
         };
         let id = f.standard_id()?;
         if id == HEARTBEAT_BASE_ID + u16::from(self.node_id) {
@@ -543,8 +602,19 @@ impl<'b> PlantNode<'b> {
             self.sim_us += u64::from(CONTROL_PERIOD_US);
             self.sample = (self.sample + 1) & 0x0F;
             self.tick()?;
-            for f in encode_observation(self.node_id, &obs, self.sample, &mut self.tx) {
-                self.client.queue(&f);
+            match self.layout {
+                FrameLayout::Classic => {
+                    for f in encode_observation(self.node_id, &obs, self.sample, &mut self.tx) {
+                        self.client.queue(&f);
+                    }
+                }
+                FrameLayout::Fd => {
+                    if let Some(tx) = self.tx.first_chunk_mut::<FD_OBS_FRAMES>() {
+                        for f in encode_observation_fd(self.node_id, &obs, self.sample, tx) {
+                            self.client.queue_fd(&f);
+                        }
+                    }
+                }
             }
             self.client.flush()?;
             let (command, fresh) = self.await_action()?;

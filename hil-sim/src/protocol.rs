@@ -5,11 +5,23 @@
 //! and `< rawmode >` with `< ok >`, receives `< send ID LEN B0 B1 ... >` (length and bytes in hex,
 //! bytes space-separated; a 3-digit id is standard, 8 digits extended) and delivers
 //! `< frame ID SECONDS.MICROS DATAHEX >` (empty data gives a double space before `>`).
+//!
+//! CAN FD (a bus started with `--fd`): python-can 4.6.1's socketcand interface has no FD frames,
+//! and socketcand's raw mode none either; socketcand's BCM mode names two FD verbs, taken here
+//! into the raw mode: a client sends `< fdsend ID FLAGS LEN B0 B1 ... >` (FLAGS hex, Linux
+//! `canfd_frame.flags`: 0x01 BRS, 0x02 ESI; LEN decimal, one of the FD lengths 0-8, 12, 16, 20,
+//! 24, 32, 48, 64; the bytes hex, as socketcand's BCM `fdsend`) and receives
+//! `< fdframe ID FLAGS SECONDS.MICROS DATAHEX >` (the word order of socketcand's BCM `fdframe`,
+//! the data as one hex run as in this raw mode's `< frame >`). The candump log writes FD frames
+//! as candump does: `ID##F DATAHEX`, F the flags nibble.
 
 use std::fmt::Write as _;
 
-use dex_runtime::can::CanFrame;
+use dex_runtime::can::{AnyFrame, CanFrame, FdFrame};
 use embedded_can::{ExtendedId, Frame, Id, StandardId};
+
+/// `canfd_frame.flags` bit: bit-rate switch (the data phase at the data bit rate).
+pub const CANFD_BRS: u8 = 0x01;
 
 /// Longest message accepted; a longer run without `>` is discarded as garbage.
 pub const MAX_MESSAGE: usize = 512;
@@ -23,6 +35,8 @@ pub enum Request {
     RawMode,
     /// `< send ID LEN BYTES... >`.
     Send(CanFrame),
+    /// `< fdsend ID FLAGS LEN BYTES... >` (CAN FD).
+    SendFd(FdFrame),
     /// A control verb of this bus: `< fault ... >`, `< stats >`, `< diag >`, `< time US >`,
     /// `< txtime US >`, `< now >`, `< quit >`.
     Control(Vec<String>),
@@ -39,6 +53,8 @@ pub enum Reply {
     Ok,
     /// `< frame ID TS DATA >`: a frame and its bus time in microseconds.
     Frame(CanFrame, u64),
+    /// `< fdframe ID FLAGS TS DATA >`: an FD frame and its bus time in microseconds.
+    FdFrame(FdFrame, u64),
     /// `< error CLASS TS >`: an error frame (class bits as in Linux `can/error.h`).
     Error(u32, u64),
     /// Any other message, as words.
@@ -107,6 +123,9 @@ pub fn parse_request(text: &str) -> Request {
         ["send", id, len, bytes @ ..] => {
             parse_send(id, len, bytes).map_or(Request::Unknown, Request::Send)
         }
+        ["fdsend", id, flags, len, bytes @ ..] => {
+            parse_fdsend(id, flags, len, bytes).map_or(Request::Unknown, Request::SendFd)
+        }
         [verb, ..]
             if matches!(
                 *verb,
@@ -132,6 +151,20 @@ fn parse_send(id: &str, len: &str, bytes: &[&str]) -> Option<CanFrame> {
     CanFrame::new(id, &data[..len])
 }
 
+fn parse_fdsend(id: &str, flags: &str, len: &str, bytes: &[&str]) -> Option<FdFrame> {
+    let id = parse_id(id)?;
+    let flags = u8::from_str_radix(flags, 16).ok()?;
+    let len: usize = len.parse().ok()?;
+    if len != bytes.len() {
+        return None;
+    }
+    let data = bytes
+        .iter()
+        .map(|b| u8::from_str_radix(b, 16).ok())
+        .collect::<Option<Vec<u8>>>()?;
+    FdFrame::new_fd(id, &data, flags & CANFD_BRS != 0)
+}
+
 /// Parses a server message (client side).
 pub fn parse_reply(text: &str) -> Reply {
     let words: Vec<&str> = text.split_ascii_whitespace().collect();
@@ -143,6 +176,21 @@ pub fn parse_reply(text: &str) -> Reply {
             match (parse_id(id), parse_ts(ts), decode_hex(data_hex)) {
                 (Some(id), Some(ts), Some(data)) => {
                     CanFrame::new(id, &data).map_or_else(|| other(&words), |f| Reply::Frame(f, ts))
+                }
+                _ => other(&words),
+            }
+        }
+        ["fdframe", id, flags, ts, rest @ ..] => {
+            let data_hex = rest.first().copied().unwrap_or("");
+            match (
+                parse_id(id),
+                u8::from_str_radix(flags, 16),
+                parse_ts(ts),
+                decode_hex(data_hex),
+            ) {
+                (Some(id), Ok(flags), Some(ts), Some(data)) => {
+                    FdFrame::new_fd(id, &data, flags & CANFD_BRS != 0)
+                        .map_or_else(|| other(&words), |f| Reply::FdFrame(f, ts))
                 }
                 _ => other(&words),
             }
@@ -196,6 +244,92 @@ pub fn frame_message(frame: &CanFrame, ts_us: u64) -> String {
     }
     s.push_str(" >");
     s
+}
+
+/// The `canfd_frame.flags` of an FD frame.
+fn fd_flags(frame: &FdFrame) -> u8 {
+    if frame.bit_rate_switch() {
+        CANFD_BRS
+    } else {
+        0
+    }
+}
+
+/// `< fdframe ID FLAGS TS DATA >` as the server delivers an FD frame.
+pub fn fd_frame_message(frame: &FdFrame, ts_us: u64) -> String {
+    let mut s = format!(
+        "< fdframe {} {:02X} {} ",
+        id_text(frame.id()),
+        fd_flags(frame),
+        ts_text(ts_us)
+    );
+    for b in frame.data() {
+        let _ = write!(s, "{b:02X}");
+    }
+    s.push_str(" >");
+    s
+}
+
+/// The message delivering any frame: `< frame ... >` or `< fdframe ... >`.
+pub fn any_frame_message(frame: &AnyFrame, ts_us: u64) -> String {
+    match frame {
+        AnyFrame::Classic(f) => frame_message(f, ts_us),
+        AnyFrame::Fd(f) => fd_frame_message(f, ts_us),
+    }
+}
+
+/// `< fdsend ID FLAGS LEN BYTES >` as a client sends an FD frame.
+pub fn fdsend_message(frame: &FdFrame) -> String {
+    let mut s = format!(
+        "< fdsend {} {:x} {} ",
+        id_text(frame.id()),
+        fd_flags(frame),
+        frame.data().len()
+    );
+    for b in frame.data() {
+        let _ = write!(s, "{b:x} ");
+    }
+    s.push('>');
+    s
+}
+
+/// The candump log line of any frame: classic `ID#DATA`, FD `ID##FDATA` (F the flags nibble).
+pub fn candump_any_line(channel: &str, frame: &AnyFrame, ts_us: u64) -> String {
+    match frame {
+        AnyFrame::Classic(f) => candump_line(channel, f, ts_us),
+        AnyFrame::Fd(f) => {
+            let mut s = format!(
+                "({}) {channel} {}##{:X}",
+                ts_text(ts_us),
+                id_text(f.id()),
+                fd_flags(f)
+            );
+            for b in f.data() {
+                let _ = write!(s, "{b:02X}");
+            }
+            s
+        }
+    }
+}
+
+/// Parses a line that [`candump_any_line`] wrote (classic or FD); `None` for anything else.
+pub fn parse_candump_any(line: &str) -> Option<(u64, AnyFrame)> {
+    let mut words = line.split_ascii_whitespace();
+    let ts = parse_ts(words.next()?.strip_prefix('(')?.strip_suffix(')')?)?;
+    let _channel = words.next()?;
+    let frame = words.next()?;
+    if words.next().is_some() {
+        return None;
+    }
+    match frame.split_once("##") {
+        Some((id, rest)) => {
+            let flags = u8::from_str_radix(rest.get(..1)?, 16).ok()?;
+            let data = decode_hex(rest.get(1..)?)?;
+            let f = FdFrame::new_fd(parse_id(id)?, &data, flags & CANFD_BRS != 0)?;
+            Some((ts, AnyFrame::Fd(f)))
+        }
+        None => parse_candump_line(line).map(|(ts, f)| (ts, AnyFrame::Classic(f))),
+    }
 }
 
 /// `< error CLASS TS >` (class bits as in Linux `can/error.h`: 0x040 bus-off, 0x100 restarted).
@@ -294,6 +428,33 @@ mod tests {
             candump_line("vcan0", &f, 2_500_000),
             "(2.500000) vcan0 123#0102FF"
         );
+    }
+
+    #[test]
+    fn fd_frames_round_trip_through_fdsend_fdframe_and_candump() {
+        let f = FdFrame::standard(0x210, &[0xAB; 48]).expect("48 bytes");
+        let send = fdsend_message(&f);
+        assert!(send.starts_with("< fdsend 210 1 48 ab ab "), "{send}");
+        let inner = send.trim_start_matches('<').trim_end_matches('>').trim();
+        assert_eq!(parse_request(inner), Request::SendFd(f));
+        let msg = fd_frame_message(&f, 1_000_001);
+        assert!(msg.starts_with("< fdframe 210 01 1.000001 ABAB"), "{msg}");
+        let inner = msg.trim_start_matches('<').trim_end_matches('>').trim();
+        assert_eq!(parse_reply(inner), Reply::FdFrame(f, 1_000_001));
+        let line = candump_any_line("vcan0", &AnyFrame::Fd(f), 7);
+        assert!(line.starts_with("(0.000007) vcan0 210##1ABAB"), "{line}");
+        assert_eq!(parse_candump_any(&line), Some((7, AnyFrame::Fd(f))));
+        let c = std_frame(0x080, &[]);
+        let line = candump_any_line("vcan0", &AnyFrame::Classic(c), 7);
+        assert_eq!(parse_candump_any(&line), Some((7, AnyFrame::Classic(c))));
+        // Not an FD length, a length that does not match the bytes, bad flags: unknown.
+        for bad in [
+            "fdsend 210 1 9 1 2 3 4 5 6 7 8 9",
+            "fdsend 210 1 12 1",
+            "fdsend 210 x 0",
+        ] {
+            assert_eq!(parse_request(bad), Request::Unknown, "{bad}");
+        }
     }
 
     #[test]

@@ -184,7 +184,8 @@ impl Bridge {
                         self.out.extend_from_slice(line.as_bytes());
                         self.stats.to_device += 1;
                     }
-                    Ok(Some(Received::Error(..))) => {}
+                    // SLCAN (and the firmware's bxCAN) carries classic frames only.
+                    Ok(Some(Received::Error(..) | Received::Fd(..))) => {}
                     Ok(None) => break,
                     Err(ClientError::Closed) => return Ok(self.stats),
                     Err(e) => return Err(e.into()),
