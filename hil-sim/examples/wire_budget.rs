@@ -3,9 +3,10 @@
 //! (`firmware/budget.txt`): the plant queues the 15 observation frames at once, the controller
 //! computes after the last one arrives, then sends the 3 action frames.
 //!
-//! Then the same with CAN FD (`dex_hil_sim::wire_fd`, a model: the bus and the runtime carry classic
-//! frames only): the observation's values (2 bytes each, as in the classic frames) in two frames of
-//! an FD length with the 2-byte E2E header each, the action in one.
+//! Then the same with CAN FD (`dex_hil_sim::wire_fd`): the runtime's FD layout
+//! (`dex_runtime::can::fd_messages`), the observation's values (2 bytes each, as in the classic
+//! frames) in two frames of an FD length with the 2-byte E2E header each, the action in one; a
+//! calculation, which `hil-sim latency --fd` measures on the bus.
 //!
 //! `cargo run -p dex-hil-sim --example wire_budget [INSTRUCTIONS_PER_STEP] [CPU_HZ]`
 //! (defaults: `controller_step` of firmware/budget.txt, 168 MHz, one instruction per cycle: a
@@ -13,10 +14,10 @@
 
 use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
 use dex_hil_sim::wire::{Offer, bits_ns, schedule, unstuffed_bits, worst_case_bits};
-use dex_hil_sim::wire_fd::{FdWire, fd_bits, fd_length};
+use dex_hil_sim::wire_fd::{FdWire, fd_bits};
 use dex_runtime::ControllerConfig;
+use dex_runtime::can::fd_messages::{FD_ACTION_LEN, FD_OBS_FRAMES, FD_OBS_LEN};
 use dex_runtime::can::messages::{ACTION_FRAMES, OBS_FRAMES, rpdo_cob_id, tpdo_cob_id};
-use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 
 fn main() -> Result<(), dex_hil_sim::compute::ComputeError> {
     let args: Vec<String> = std::env::args().collect();
@@ -86,18 +87,11 @@ fn main() -> Result<(), dex_hil_sim::compute::ComputeError> {
     Ok(())
 }
 
-/// Bytes of a frame carrying `values` 2-byte values behind the 2-byte E2E header (CRC, alive
-/// and sample counters), rounded up to an FD length.
-fn fd_frame_len(values: usize) -> usize {
-    fd_length(2 + 2 * values).unwrap_or(64)
-}
-
 /// The observation in two FD frames, the action in one: the loop's time at three bit-rate pairs.
 fn fd_table(compute_ns: u64, hz: u64) {
-    const OBS_FD_FRAMES: usize = 2;
+    const OBS_FD_FRAMES: usize = FD_OBS_FRAMES;
     const GOAL_NS: u64 = 1_500_000;
-    let obs_len = fd_frame_len(OBS_DIM.div_ceil(OBS_FD_FRAMES));
-    let act_len = fd_frame_len(ACT_DIM);
+    let (obs_len, act_len) = (FD_OBS_LEN, FD_ACTION_LEN);
     println!();
     println!(
         "CAN FD (model): observation in {OBS_FD_FRAMES} frames of {obs_len} bytes, action in one of \

@@ -1,7 +1,7 @@
 //! `dex-hil-sim`: software-in-the-loop for the controller, over a virtual CAN bus.
 //!
 //! - [`bus`]: a TCP server speaking the socketcand subset that python-can's `socketcand` interface
-//!   needs ([`protocol`]); one global frame order, bus-time stamps, per-client bounded queues,
+//!   needs ([`protocol`]; CAN FD frames with socketcand's `fdsend` / `fdframe` verbs); one global frame order, bus-time stamps, per-client bounded queues,
 //!   fault injection (drop, corrupt, delay, bus-off) and a candump log.
 //! - [`client`]: a socketcand client implementing `embedded_can::blocking::Can`: the adapter that
 //!   puts a node on the bus.
@@ -15,8 +15,8 @@
 //! - [`slcan_bridge`]: joins an SLCAN serial line (the firmware node under QEMU) to the bus.
 //! - [`wire`]: classic CAN frames' time on the wire (bit stuffing) and arbitration, the model of the
 //!   wire-time figures.
-//! - [`wire_fd`]: CAN FD frames' time on the wire (two bit rates), a model for budgets; the bus
-//!   carries classic frames only.
+//! - [`wire_fd`]: CAN FD frames' time on the wire (two bit rates; exact or worst-case stuffing):
+//!   the FD bus's wire (`hil-sim bus --fd --data-bitrate D`) and the budget model.
 //! - [`compute`]: the controller's compute per step on the Cortex-M4F (`firmware/budget.txt`), the
 //!   time a lockstep node's answer takes in bus time.
 //! - [`latency`]: observation to action in bus time from a timed bus's frame trace: wire time,

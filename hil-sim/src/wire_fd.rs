@@ -23,13 +23,8 @@ use embedded_can::{Frame, Id};
 
 use crate::wire::{Stuffing, WireConfig};
 
-/// The data lengths an FD frame can have (DLC 0..=15).
-pub const FD_LENGTHS: [usize; 16] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64];
-
-/// The shortest FD data length that holds `n` bytes, if any (at most 64).
-pub fn fd_length(n: usize) -> Option<usize> {
-    FD_LENGTHS.iter().copied().find(|&l| l >= n)
-}
+/// The data lengths of an FD frame and the shortest that holds `n` bytes: the runtime's.
+pub use dex_runtime::can::fd_frame::{FD_LENGTHS, fd_length};
 
 /// An FD frame's bits in its two phases.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
