@@ -737,6 +737,32 @@ mod tests {
     }
 
     #[test]
+    fn ibrl_needs_a_starting_policy_and_excludes_a_residual() {
+        let validate = |extra: &[&str]| {
+            let mut args = vec!["trainer", "train", "--task", "stack", "--preset", "paper"];
+            args.extend_from_slice(extra);
+            let cli = crate::Cli::try_parse_from(args).expect("flags parse");
+            let crate::Command::Train(a) = cli.command else {
+                panic!("not train")
+            };
+            let mut s = TrainSettings::default();
+            apply_flags(&mut s, &a);
+            s.validate()
+        };
+        assert!(matches!(
+            validate(&["--ibrl"]),
+            Err(train_settings::SettingsError::IbrlWithoutInit)
+        ));
+        assert!(matches!(
+            validate(&["--ibrl", "--clone", "--residual", "64"]),
+            Err(train_settings::SettingsError::Learner(_))
+        ));
+        let s = settings(&["--task", "stack", "--clone", "--ibrl"]);
+        assert!(s.run.ibrl);
+        assert!(s.validate().is_ok());
+    }
+
+    #[test]
     fn the_finetune_preset_is_the_clone_stage_and_rl_that_keeps_the_clone() {
         let s = settings(&["--task", "stack", "--preset", "finetune"]);
         assert_eq!(s.clone, Some(train_settings::CloneStage::default()));

@@ -216,5 +216,11 @@ mod tests {
             check_distributable(&s),
             Err(TrainRunError::NotDistributable { why }) if why.contains("residual")
         ));
+        s.run.ddpg.residual = None;
+        s.run.ibrl = true;
+        assert!(matches!(
+            check_distributable(&s),
+            Err(TrainRunError::NotDistributable { why }) if why.contains("IBRL")
+        ));
     }
 }
