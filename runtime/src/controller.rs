@@ -1107,6 +1107,10 @@ impl<const WIDTH: usize, F: TxFrame> crate::canopen::device::DeviceHost
         self.cfg.node_id
     }
 
+    fn layout(&self) -> FrameLayout {
+        self.layout
+    }
+
     fn observation_raw(&self, index: usize) -> i16 {
         let lsb = quantity_of(index).map_or(1.0, Quantity::lsb);
         self.obs.get(index).map_or(0, |&v| to_raw(v, lsb))

@@ -14,8 +14,9 @@
 //! | 0x2001 | 0 | safety envelope status (the envelope's status byte) | u8 | ro |
 //! | 0x2002 | 0..=2 | controller status: 2; controller state u8, fault code u8 | | ro |
 //!
-//! and the PDO objects ([`super::pdo`]: 0x1400.., 0x1600.., 0x1800.., 0x1A00.., and the mapped
-//! observation and action values and E2E headers 0x2100, 0x2101, 0x2200, 0x2201).
+//! and the PDO objects of the controller's frame layout ([`super::pdo::objects`]: 0x1400..,
+//! 0x1600.., 0x1800.., 0x1A00.., and the mapped observation and action values and E2E headers
+//! 0x2100, 0x2101, 0x2200, 0x2201; classic or CAN FD, [`DeviceHost::layout`]).
 //!
 //! Values the controller owns (its state, its policy, the envelope) are read through
 //! [`DeviceHost`]; what the dictionary owns (heartbeat time, error history, error behaviour) is in
@@ -28,6 +29,7 @@ use super::od::{
 };
 use super::pdo;
 use super::program::{ProgramHost, ProgramObjects, is_program_object};
+use crate::can::layout::FrameLayout;
 
 /// Most emergency codes kept in 0x1003.
 pub const ERROR_HISTORY: usize = 8;
@@ -199,6 +201,9 @@ pub trait DeviceHost {
     fn fault_code(&self) -> u8;
     /// The node id (the COB-IDs of the PDO communication objects).
     fn node_id(&self) -> u8;
+    /// The frame layout of the observation and the action: which PDO objects the dictionary
+    /// serves ([`pdo::objects`]).
+    fn layout(&self) -> FrameLayout;
     /// Raw value `index` of the last complete observation (0x2100:index+1).
     fn observation_raw(&self, index: usize) -> i16;
     /// Raw value `index` of the last action sent (0x2200:index+1).
@@ -210,10 +215,11 @@ pub trait DeviceHost {
     fn tpdo_header(&self, k: usize) -> u16;
 }
 
-/// A sub-object of the dictionary's basic objects: [`OBJECTS`], then the PDO objects.
-fn find_basic(index: u16, sub: u8) -> Result<&'static SubObject, SdoAbort> {
+/// A sub-object of the dictionary's basic objects: [`OBJECTS`], then the PDO objects of
+/// `layout`.
+fn find_basic(layout: FrameLayout, index: u16, sub: u8) -> Result<&'static SubObject, SdoAbort> {
     match find(&OBJECTS, index, sub) {
-        Err(SdoAbort::NoObject) => find(&pdo::OBJECTS, index, sub),
+        Err(SdoAbort::NoObject) => find(pdo::objects(layout), index, sub),
         other => other,
     }
 }
@@ -301,7 +307,7 @@ impl<'a, 'r, H: DeviceHost + ProgramHost> DeviceObjects<'a, 'r, H> {
 
     /// The value of a basic object as little-endian bytes and its length.
     fn value(&self, index: u16, sub: u8) -> Result<([u8; 4], usize), SdoAbort> {
-        let desc = find_basic(index, sub)?;
+        let desc = find_basic(self.host().layout(), index, sub)?;
         let len = desc.data_type.size().unwrap_or(4) as usize;
         let v = match desc.value {
             Value::Const(v) => v,
@@ -353,7 +359,7 @@ impl<H: DeviceHost + ProgramHost> ObjectDictionary for DeviceObjects<'_, '_, H> 
             return self.program.entry(index, sub);
         }
         // An empty slot of the error history exists too (it reads as "no data").
-        Ok(basic_entry(find_basic(index, sub)?))
+        Ok(basic_entry(find_basic(self.host().layout(), index, sub)?))
     }
 
     fn read(
