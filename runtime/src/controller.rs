@@ -275,8 +275,6 @@ enum Policy<'p, const WIDTH: usize> {
 #[derive(Debug, Clone)]
 pub struct Controller<'p, const WIDTH: usize, F: TxFrame = CanFrame> {
     cfg: ControllerConfig,
-    /// Which frames carry the observation and the action.
-    layout: FrameLayout,
     frames: PhantomData<fn() -> F>,
     state: State,
     fault: FaultCode,
@@ -315,7 +313,7 @@ impl<'p, const WIDTH: usize> Controller<'p, WIDTH, AnyFrame> {
     /// [`Controller::new`]. The same states, watchdog, E2E checks and refusals as classic.
     pub fn new_fd(cfg: ControllerConfig) -> Self {
         let mut c = Self::new(cfg);
-        c.layout = FrameLayout::Fd;
+        // The assembler's layout is the controller's ([`Controller::layout`]).
         c.assembler =
             ObservationAssembler::with_layout(cfg.node_id, cfg.e2e_max_delta, FrameLayout::Fd);
         c
@@ -327,7 +325,6 @@ impl<'p, const WIDTH: usize, F: TxFrame> Controller<'p, WIDTH, F> {
     pub fn new(cfg: ControllerConfig) -> Self {
         Controller {
             cfg,
-            layout: FrameLayout::Classic,
             frames: PhantomData,
             state: State::Boot,
             fault: FaultCode::None,
@@ -368,9 +365,17 @@ impl<'p, const WIDTH: usize, F: TxFrame> Controller<'p, WIDTH, F> {
         &self.sdo.device
     }
 
-    /// The frame layout of the observation and the action.
+    /// The frame layout of the observation and the action: the classic layout for a controller
+    /// whose frame type holds no FD frames ([`TxFrame::HOLDS_FD`]; [`CanFrame`]), a constant
+    /// there, so that its frame path has neither layout branches nor FD code; else the layout it
+    /// was made with ([`Controller::new_fd`]: FD), which its observation assembler holds.
+    #[inline(always)]
     pub fn layout(&self) -> FrameLayout {
-        self.layout
+        if F::HOLDS_FD {
+            self.assembler.layout()
+        } else {
+            FrameLayout::Classic
+        }
     }
 
     /// Current state.
@@ -603,7 +608,7 @@ impl<'p, const WIDTH: usize, F: TxFrame> Controller<'p, WIDTH, F> {
         };
         if id == NMT_ID {
             self.on_nmt(frame.data(), clock, &mut out);
-        } else if let Some(k) = self.assembler.frame_index(id) {
+        } else if let Some(k) = self.assembler.frame_index_as(self.layout(), id) {
             self.on_observation_frame(k, frame.data(), clock, &mut out, slots);
         } else {
             self.diag.ignored_frames = self.diag.ignored_frames.saturating_add(1);
@@ -786,7 +791,7 @@ impl<'p, const WIDTH: usize, F: TxFrame> Controller<'p, WIDTH, F> {
     ) {
         self.frames_this_cycle = true;
         let abandoned = self.assembler.abandoned;
-        let outcome = self.assembler.push(k, data);
+        let outcome = self.assembler.push_as(self.layout(), k, data);
         if self.assembler.abandoned != abandoned {
             self.diag.incomplete_observations = self.diag.incomplete_observations.saturating_add(1);
         }
@@ -971,7 +976,7 @@ impl<'p, const WIDTH: usize, F: TxFrame> Controller<'p, WIDTH, F> {
     /// The action frames of the current action, tagged `sample`, in the controller's layout.
     fn push_action(&mut self, sample: u8, out: &mut Outbox<F>) {
         let node = self.cfg.node_id;
-        match self.layout {
+        match self.layout() {
             FrameLayout::Classic => {
                 for f in encode_action(node, &self.action, sample, &mut self.action_tx) {
                     self.push_tpdo(f, out);
@@ -1108,7 +1113,7 @@ impl<const WIDTH: usize, F: TxFrame> crate::canopen::device::DeviceHost
     }
 
     fn layout(&self) -> FrameLayout {
-        self.layout
+        Controller::layout(self)
     }
 
     fn observation_raw(&self, index: usize) -> i16 {

@@ -3,9 +3,11 @@
 //! the frames differ.
 
 use crate::can::e2e::{E2eReceiver, E2eStatus};
-use crate::can::fd_messages::raw_value;
+use crate::can::fd_messages::{FD_OBS_FRAMES, FD_OBS_LEN, FD_VALUES_PER_OBS_FRAME};
 use crate::can::layout::FrameLayout;
-use crate::can::messages::{OBS_FRAMES, from_raw, observation_frame_index, rpdo_cob_id};
+use crate::can::messages::{
+    OBS_FRAMES, SIGNALS_PER_FRAME, from_raw, observation_frame_index, rpdo_cob_id,
+};
 use crate::interface::{OBS_DIM, Quantity, quantity_of};
 
 /// What one observation frame did to the assembly.
@@ -82,54 +84,82 @@ impl ObservationAssembler {
     }
 
     /// The frame layout it assembles.
+    #[inline]
     pub fn layout(&self) -> FrameLayout {
         self.layout
     }
 
     /// Index of the observation frame with CAN id `id`, if it is one of this node's.
     pub fn frame_index(&self, id: u16) -> Option<usize> {
-        observation_frame_index(self.node, id).filter(|&k| k < self.layout.observation_frames())
+        self.frame_index_as(self.layout, id)
+    }
+
+    /// [`ObservationAssembler::frame_index`] for a caller that knows the assembler's layout
+    /// (`layout` is [`ObservationAssembler::layout`]): a constant `layout` leaves no branch.
+    #[inline(always)]
+    pub(crate) fn frame_index_as(&self, layout: FrameLayout, id: u16) -> Option<usize> {
+        debug_assert_eq!(layout, self.layout);
+        let k = observation_frame_index(self.node, id)?;
+        match layout {
+            FrameLayout::Classic => Some(k),
+            FrameLayout::Fd => (k < FD_OBS_FRAMES).then_some(k),
+        }
     }
 
     /// Takes observation frame `k`. Frames of a new sample abandon an incomplete older one.
     /// A frame of the wrong length for the layout is [`FrameOutcome::Malformed`].
     pub fn push(&mut self, k: usize, data: &[u8]) -> FrameOutcome {
-        let layout = self.layout;
-        let Some(receiver) = self
-            .receivers
-            .get_mut(k)
-            .filter(|_| k < layout.observation_frames())
-        else {
+        self.push_as(self.layout, k, data)
+    }
+
+    /// [`ObservationAssembler::push`] for a caller that knows the assembler's layout (`layout` is
+    /// [`ObservationAssembler::layout`]): a constant `layout` (a classic-only controller's) runs
+    /// the classic frame's code alone, with the layout's sizes as constants.
+    #[inline(always)]
+    pub(crate) fn push_as(&mut self, layout: FrameLayout, k: usize, data: &[u8]) -> FrameOutcome {
+        debug_assert_eq!(layout, self.layout);
+        match layout {
+            FrameLayout::Classic => self.push_frame::<OBS_FRAMES, 8, SIGNALS_PER_FRAME>(k, data),
+            FrameLayout::Fd => {
+                self.push_frame::<FD_OBS_FRAMES, FD_OBS_LEN, FD_VALUES_PER_OBS_FRAME>(k, data)
+            }
+        }
+    }
+
+    /// Takes frame `k` of a layout of `FRAMES` frames of `LEN` bytes, `PER_FRAME` values each.
+    fn push_frame<const FRAMES: usize, const LEN: usize, const PER_FRAME: usize>(
+        &mut self,
+        k: usize,
+        data: &[u8],
+    ) -> FrameOutcome {
+        const { assert!(2 + 2 * PER_FRAME <= LEN && FRAMES <= OBS_FRAMES) };
+        let Some(receiver) = self.receivers.get_mut(k).filter(|_| k < FRAMES) else {
             return FrameOutcome::Malformed;
         };
-        if data.len() != layout.observation_len() {
+        let Ok(data) = <&[u8; LEN]>::try_from(data) else {
             return FrameOutcome::Malformed;
-        }
+        };
         let status = receiver.check(rpdo_cob_id(self.node, k), data);
         if status != E2eStatus::Ok {
             return FrameOutcome::Rejected(status);
         }
         let sample = data[1] >> 4;
         self.headers[k] = u16::from_le_bytes([data[0], data[1]]);
+        let all = (1u32 << FRAMES) - 1;
         if self.sample != Some(sample) {
-            if self.received != 0 && self.received != (1u32 << layout.observation_frames()) - 1 {
+            if self.received != 0 && self.received != all {
                 self.abandoned = self.abandoned.saturating_add(1);
             }
             self.sample = Some(sample);
             self.received = 0;
         }
-        let per_frame = layout.observation_values_per_frame();
-        for s in 0..per_frame {
-            let index = k * per_frame + s;
-            if let (Some(slot), Some(q), Some(r)) = (
-                self.values.get_mut(index),
-                quantity_of(index),
-                raw_value(data, s),
-            ) {
-                *slot = from_raw(r, q.lsb());
+        for s in 0..PER_FRAME {
+            let index = k * PER_FRAME + s;
+            let raw = i16::from_le_bytes([data[2 + 2 * s], data[3 + 2 * s]]);
+            if let (Some(slot), Some(q)) = (self.values.get_mut(index), quantity_of(index)) {
+                *slot = from_raw(raw, q.lsb());
             }
         }
-        let all = (1u32 << layout.observation_frames()) - 1;
         let before = self.received;
         self.received |= 1 << k;
         if self.received == all && before != all {

@@ -137,6 +137,10 @@ impl Frame for FdFrame {
 /// A frame type a controller's outbox holds ([`crate::controller::Outbox`]): every type holds
 /// the classic frames; an FD-capable one also the FD frames of the FD layout.
 pub trait TxFrame: Sized {
+    /// Whether this type holds FD frames. A controller whose type holds classic frames only is in
+    /// the classic layout, known at compile time: its frame path has no layout branches and no
+    /// FD code ([`crate::Controller::layout`]).
+    const HOLDS_FD: bool;
     /// A classic frame as this type.
     fn classic(frame: CanFrame) -> Self;
     /// An FD frame as this type, `None` if the type holds classic frames only.
@@ -144,6 +148,8 @@ pub trait TxFrame: Sized {
 }
 
 impl TxFrame for CanFrame {
+    const HOLDS_FD: bool = false;
+
     fn classic(frame: CanFrame) -> Self {
         frame
     }
@@ -230,6 +236,8 @@ impl Frame for AnyFrame {
 }
 
 impl TxFrame for AnyFrame {
+    const HOLDS_FD: bool = true;
+
     fn classic(frame: CanFrame) -> Self {
         AnyFrame::Classic(frame)
     }
