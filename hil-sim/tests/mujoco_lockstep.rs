@@ -1,6 +1,7 @@
 //! With the MuJoCo plant: a lockstep episode over the bus gives the same actions, return and
 //! success as the runtime evaluator driving the environment directly with the CAN quantisation on
-//! both sides (what `trainer eval --can-quantisation` measures).
+//! both sides (what `trainer eval --can-quantisation` measures); on a CAN FD bus (`--fd`, the FD
+//! layout) the shipped Grasp policy's episodes are those of the classic bus, bit for bit.
 #![cfg(feature = "mujoco")]
 #![allow(clippy::unwrap_used, clippy::expect_used)] // tests may panic on failure
 
@@ -111,5 +112,58 @@ fn shipped_grasp_policy_over_the_bus_scores_like_trainer_eval() {
     assert!(
         over_the_bus_like_trainer_eval(file, Task::Grasp, 4) >= 3,
         "the shipped Grasp policy grasps"
+    );
+}
+
+#[test]
+fn shipped_grasp_policy_over_an_fd_bus_equals_the_classic_bus() {
+    // The same starts (`trainer eval`'s first seeds) on a timed CAN FD bus at 1 Mbit/s nominal,
+    // 5 Mbit/s data (the FD layout: two 48-byte observation frames, one 20-byte action frame) and
+    // on a timed classic bus at 1 Mbit/s: the policy takes the same quantised values either way,
+    // so every action frame carries the same values and the episodes end alike.
+    use dex_env::seeds::{EVAL_SEED, episode_seed};
+    use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
+    use dex_hil_sim::wire::{Stuffing, WireConfig};
+    let file = include_bytes!("../../policies/grasp.dxpl");
+    let episodes: Vec<(u64, u32)> = (0..4)
+        .map(|i| (episode_seed(EVAL_SEED, i), u32::MAX))
+        .collect();
+    let nominal = WireConfig {
+        bitrate: 1_000_000,
+        stuffing: Stuffing::Exact,
+    };
+    // The Cortex-M4F's step (firmware/budget.txt) as the node's compute, as `hil-sim latency`.
+    let compute_us = StepCompute::new(None, DEFAULT_CPU_HZ).unwrap().us();
+    let (fd, fd_reports) = common::lockstep_over_an_fd_wire(
+        file,
+        &mut MujocoPlant::new(Task::Grasp).unwrap(),
+        &episodes,
+        Some(nominal),
+        Some(5_000_000),
+        compute_us,
+        None,
+    );
+    let (classic, classic_reports) = common::lockstep_over_a_wire(
+        file,
+        &mut MujocoPlant::new(Task::Grasp).unwrap(),
+        &episodes,
+        Some(nominal),
+        compute_us,
+        None,
+    );
+    let steps: u32 = fd_reports.iter().map(|r| r.steps).sum();
+    assert_eq!((fd.len(), classic.len()), (steps as usize, steps as usize));
+    for (i, (a, b)) in fd.iter().zip(&classic).enumerate() {
+        assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "step {i}");
+    }
+    assert_eq!(fd_reports.len(), episodes.len());
+    for (f, c) in fd_reports.iter().zip(&classic_reports) {
+        assert_eq!(f.episode_return.to_bits(), c.episode_return.to_bits());
+        assert_eq!((f.seed, f.success, f.steps), (c.seed, c.success, c.steps));
+        assert_eq!((f.steps_without_action, c.steps_without_action), (0, 0));
+    }
+    assert!(
+        fd_reports.iter().filter(|r| r.success).count() >= 3,
+        "the shipped Grasp policy grasps on the FD bus"
     );
 }
