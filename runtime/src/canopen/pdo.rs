@@ -417,8 +417,8 @@ macro_rules! fd_rpdo_map {
     };
 }
 
-/// The bits a mapping record maps (the sum of its entries' lengths; 0 for any other object).
-pub const fn mapped_bits(object: &Object) -> u32 {
+/// The bits a PDO mapping record maps: the sum of its entries' lengths (sub-indices 1..).
+const fn mapped_bits(object: &Object) -> u32 {
     let mut bits = 0;
     let mut s = 1;
     while s < object.subs.len() {
