@@ -16,7 +16,7 @@ use dex_runtime::envelope::{Envelope, EnvelopeConfig};
 use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, ACTION_JOINTS, CONTROL_PERIOD_US, OBS_DIM};
 
-use crate::{EnvConfig, EnvError, JacoEnv, MarkovDemonstrator, Scene};
+use crate::{Demonstration, EnvConfig, EnvError, JacoEnv, MarkovDemonstrator, Scene};
 
 // Each episode's start seed (shared by `trainer eval`, `hil-sim run` and dexstack) and the
 // held-out range, defined in `crate::seeds`, under their old paths here.
@@ -376,14 +376,28 @@ pub fn teacher_outcomes(
     on_episode: &(dyn Fn() + Sync),
 ) -> Result<Vec<(f64, bool)>, EvalError> {
     let teacher = MarkovDemonstrator::new(settings.env.task);
+    demonstration_outcomes(scene, settings, &|| Ok(teacher), on_episode)
+}
+
+/// (return, success) of a [`Demonstration`] (one copy per thread from `make`, restarted before
+/// each episode; it reads the simulation's state, so neither the CAN quantisation nor the
+/// envelope applies) on the starts of [`episode_outcomes`] with the same settings, in episode
+/// order.
+pub fn demonstration_outcomes<D: Demonstration>(
+    scene: &Scene,
+    settings: &EvalSettings,
+    make: &(dyn Fn() -> Result<D, EvalError> + Sync),
+    on_episode: &(dyn Fn() + Sync),
+) -> Result<Vec<(f64, bool)>, EvalError> {
     outcomes_in_order(
         settings,
-        || Ok(JacoEnv::new(scene, settings.env)),
-        |env, seed| {
+        || Ok((JacoEnv::new(scene, settings.env), make()?)),
+        |(env, teacher), seed| {
             env.reset(seed)?;
+            teacher.restart();
             let mut total = 0.0f64;
             loop {
-                let out = env.step(&teacher.act(env))?;
+                let out = env.step(&teacher.act(env)?)?;
                 total += f64::from(out.reward);
                 if out.done {
                     return Ok((total, out.success));

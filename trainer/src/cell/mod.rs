@@ -2,6 +2,8 @@
 //!
 //! - [`jaco`]: the environment behind the learner's [`crate::learn::Env`] trait.
 //! - [`policy_demo`]: a policy file as the demonstration of the start-state scheme.
+//! - [`proposal_pair`]: an IBRL run's actor and proposal as one teacher.
 
 pub mod jaco;
 pub mod policy_demo;
+pub mod proposal_pair;

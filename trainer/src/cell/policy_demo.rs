@@ -120,6 +120,9 @@ pub enum DemoSource {
     Policy(Box<PolicyDemonstration>),
     /// Several exported policies of one task acting as one ([`PolicyEnsemble`]).
     Ensemble(PolicyEnsemble),
+    /// An IBRL run's actor and proposal, the better-rated action at each state
+    /// ([`crate::cell::proposal_pair::ProposalPair`]).
+    Pair(Box<crate::cell::proposal_pair::ProposalPair>),
 }
 
 impl Demonstration for DemoSource {
@@ -129,6 +132,7 @@ impl Demonstration for DemoSource {
             DemoSource::Markov(d) => Demonstration::restart(d),
             DemoSource::Policy(p) => p.restart(),
             DemoSource::Ensemble(e) => e.restart(),
+            DemoSource::Pair(p) => p.restart(),
         }
     }
 
@@ -138,6 +142,7 @@ impl Demonstration for DemoSource {
             DemoSource::Markov(d) => Demonstration::act(d, env),
             DemoSource::Policy(p) => p.act(env),
             DemoSource::Ensemble(e) => e.act(env),
+            DemoSource::Pair(p) => p.act(env),
         }
     }
 }

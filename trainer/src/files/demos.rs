@@ -301,6 +301,7 @@ pub fn record_with(
                     DemoSource::Markov(_) => "markov",
                     DemoSource::Policy(_) => "policy",
                     DemoSource::Ensemble(_) => "policy ensemble",
+                    DemoSource::Pair(_) => "IBRL pair",
                 },
                 match settings.mode {
                     RecordMode::Demonstrator => "",

@@ -18,6 +18,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::cell::policy_demo::{DemoSource, PolicyDemonstration, PolicyEnsemble};
+use crate::cell::proposal_pair::ProposalPair;
 use crate::env::{MarkovDemonstrator, Scene, Task};
 use crate::evaluate::{EvalError, EvalSettings, evaluate_policy_file};
 use crate::files::atomic_write::write_atomic;
@@ -71,6 +72,10 @@ pub struct ImitationConfig {
     /// network, recording and labelling every episode (clean, DART, DAgger) with their mean
     /// action. Empty: the Markov demonstrator.
     pub teacher_policies: Vec<PathBuf>,
+    /// The teacher is an IBRL run's pair instead ([`ProposalPair`]: the seed folder of a
+    /// `trainer train --ibrl` run; at each state the better-rated of its actor and its
+    /// proposal): the run distils the pair into one network. None: not a pair.
+    pub teacher_pair: Option<PathBuf>,
     /// Close bursts in the DART episodes ([`RecordSettings::close_bursts`]: the probability per
     /// step of holding the fingers closing for 3-8 steps; 0: none).
     pub close_bursts: f32,
@@ -110,6 +115,7 @@ impl Default for ImitationConfig {
             tuck_first: false,
             tuck_ramp: false,
             teacher_policies: Vec::new(),
+            teacher_pair: None,
             bc: BcConfig {
                 steps: 30_000,
                 features: true,
@@ -177,10 +183,16 @@ impl ImitationConfig {
                 self.dagger_repeat
             )));
         }
-        if !self.teacher_policies.is_empty() && (self.tuck_first || self.tuck_ramp) {
+        if self.teacher_pair.is_some() && !self.teacher_policies.is_empty() {
+            return Err(ImitationError::Settings(
+                "one teacher: teacher_pair or teacher_policies, not both".into(),
+            ));
+        }
+        let by_policies = !self.teacher_policies.is_empty() || self.teacher_pair.is_some();
+        if by_policies && (self.tuck_first || self.tuck_ramp) {
             return Err(ImitationError::Settings(
                 "tuck_first and tuck_ramp change the Markov teacher; a run taught by policy files \
-                 (teacher_policies) has none"
+                 (teacher_policies, teacher_pair) has none"
                     .into(),
             ));
         }
@@ -350,6 +362,23 @@ fn teacher_ensemble(cfg: &ImitationConfig) -> Result<Option<PolicyEnsemble>, Imi
     Ok(Some(ensemble))
 }
 
+/// The IBRL run of `cfg.teacher_pair` as the teacher, checked to be of the run's task.
+fn teacher_pair(cfg: &ImitationConfig) -> Result<Option<ProposalPair>, ImitationError> {
+    let Some(dir) = &cfg.teacher_pair else {
+        return Ok(None);
+    };
+    let (pair, task) =
+        ProposalPair::from_run(dir).map_err(|e| ImitationError::Settings(e.to_string()))?;
+    if task.task() != cfg.task {
+        return Err(ImitationError::Settings(format!(
+            "teacher_pair {} is a {task:?} run; the run learns {}",
+            dir.display(),
+            crate::files::demos::task_name(cfg.task)
+        )));
+    }
+    Ok(Some(pair))
+}
+
 /// Runs (or resumes) an imitation run in `dir`.
 pub fn run_imitation(
     scene: &Scene,
@@ -361,6 +390,7 @@ pub fn run_imitation(
     // Before the folder is touched: a teacher file that is missing or of another task leaves
     // nothing behind.
     let ensemble = teacher_ensemble(cfg)?;
+    let pair = teacher_pair(cfg)?;
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     // Held until the run ends: a second run in this folder is refused at once.
     let _lock = crate::pipeline::run_lock::RunLock::acquire(dir)?;
@@ -375,9 +405,10 @@ pub fn run_imitation(
         Ok(_) => {}
         Err(_) => write_atomic(&settings_path, settings.as_bytes()).map_err(io(&settings_path))?,
     }
-    let expert = |task| match &ensemble {
-        Some(e) => DemoSource::Ensemble(e.clone()),
-        None => DemoSource::Markov(
+    let expert = |task| match (&ensemble, &pair) {
+        (Some(e), _) => DemoSource::Ensemble(e.clone()),
+        (None, Some(p)) => DemoSource::Pair(Box::new(p.clone())),
+        (None, None) => DemoSource::Markov(
             MarkovDemonstrator::new(task)
                 .with_tuck_first(cfg.tuck_first)
                 .with_tuck_ramp(cfg.tuck_ramp),

@@ -9,7 +9,10 @@ use anyhow::{Context, bail};
 use clap::Args;
 use serde::Serialize;
 
-use dex_trainer::env::evaluate::{ensemble_outcomes, episode_outcomes, teacher_outcomes};
+use dex_trainer::cell::proposal_pair::ProposalPair;
+use dex_trainer::env::evaluate::{
+    demonstration_outcomes, ensemble_outcomes, episode_outcomes, teacher_outcomes,
+};
 use dex_trainer::env::paired::Paired;
 use dex_trainer::evaluate::{PolicyEval, wilson_interval};
 use dex_trainer::files::atomic_write::write_atomic;
@@ -22,13 +25,19 @@ use crate::train::{bar, load_scene};
 #[derive(Args, Debug)]
 pub struct CompareArgs {
     /// Policy files, all of one task.
-    #[arg(required_unless_present = "ensemble")]
+    #[arg(required_unless_present_any = ["ensemble", "pair"])]
     policies: Vec<PathBuf>,
     /// Also an ensemble: the mean of these policy files' commands (comma-separated; the flag may
     /// repeat, one entry each). The controller runs one network, so an ensemble is measured to be
     /// distilled into one (`trainer imitate --teacher-policies`), not flashed.
     #[arg(long)]
     ensemble: Vec<String>,
+    /// Also an IBRL run's pair (`trainer train --ibrl`): its seed folder (`checkpoint.bin`,
+    /// `settings.toml`); at each state the better-rated of the run's actor and its proposal
+    /// (the flag may repeat). It reads the simulation's state, as the teacher does, and is
+    /// measured to be distilled into one network (`trainer imitate --teacher-pair`), not flashed.
+    #[arg(long, value_name = "SEED_DIR")]
+    pair: Vec<PathBuf>,
     /// Also the task's Markov demonstrator (the teacher the clones learn from), on the same
     /// starts (it reads the simulation's state: no CAN quantisation or envelope applies to it).
     #[arg(long)]
@@ -113,13 +122,26 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     for path in &args.policies {
         files.push((path.display().to_string(), member_bytes[path].clone()));
     }
+    let mut pairs = Vec::with_capacity(args.pair.len());
+    for dir in &args.pair {
+        let (pair, own) = ProposalPair::from_run(dir)?;
+        match task {
+            None => task = Some(own),
+            Some(t) if t != own => bail!(
+                "{} is a {own:?} run, the first entry a {t:?} one: compare entries of one task",
+                dir.display()
+            ),
+            Some(_) => {}
+        }
+        pairs.push((dir, pair));
+    }
     let Some(task) = task else {
         bail!("no policy file given");
     };
     let scene = load_scene()?;
     let settings = args.at.settings(task, args.episodes, false);
     let started = Instant::now();
-    let entries = files.len() + ensembles.len() + usize::from(args.teacher);
+    let entries = files.len() + ensembles.len() + pairs.len() + usize::from(args.teacher);
     let pb = bar(
         u64::from(args.episodes) * entries as u64,
         false,
@@ -146,6 +168,12 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
                 .join(", ")
         );
         let o = ensemble_outcomes(&bytes, &scene, &settings, &|| pb.inc(1))
+            .with_context(|| format!("evaluating the {name}"))?;
+        outcomes.push((name, o));
+    }
+    for (dir, pair) in &pairs {
+        let name = format!("IBRL pair of {}", dir.display());
+        let o = demonstration_outcomes(&scene, &settings, &|| Ok(pair.clone()), &|| pb.inc(1))
             .with_context(|| format!("evaluating the {name}"))?;
         outcomes.push((name, o));
     }

@@ -46,6 +46,10 @@ pub struct ImitateArgs {
     /// with commas).
     #[arg(long, value_delimiter = ',')]
     teacher_policies: Vec<std::path::PathBuf>,
+    /// Distil an IBRL run's pair into one network (`trainer train --ibrl`; its seed folder): at
+    /// each state the better-rated of the run's actor and its proposal is the teacher.
+    #[arg(long, value_name = "SEED_DIR")]
+    teacher_pair: Option<std::path::PathBuf>,
     /// Close bursts in the DART episodes: the probability per step of holding the executed
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
@@ -134,6 +138,9 @@ impl ImitateArgs {
         }
         if !self.teacher_policies.is_empty() {
             c.teacher_policies = self.teacher_policies.clone();
+        }
+        if let Some(p) = &self.teacher_pair {
+            c.teacher_pair = Some(p.clone());
         }
         if let Some(v) = self.rounds {
             c.rounds = v;

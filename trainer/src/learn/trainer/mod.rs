@@ -297,6 +297,14 @@ impl Trainer {
         (&self.nets.critic, &self.shared.critic)
     }
 
+    /// The twin critic's current parameters, with `td3.twin_critics`.
+    pub fn twin_critic(&self) -> Option<&[f32]> {
+        self.cfg
+            .td3
+            .twin_critics
+            .then_some(&self.shared.critic2[..])
+    }
+
     /// The critic's target network parameters (what the TD targets are computed with).
     pub fn target_critic(&self) -> &[f32] {
         &self.shared.target_critic
