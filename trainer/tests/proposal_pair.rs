@@ -115,7 +115,10 @@ fn a_pair_labels_with_the_better_rated_action_and_bad_pairs_are_refused() {
     }
     assert_eq!(by_actor + by_proposal, set.rows.len());
     // Both members label some states: the test sees the choice, not one member.
-    assert!(by_actor > 0 && by_proposal > 0, "{by_actor} / {by_proposal}");
+    assert!(
+        by_actor > 0 && by_proposal > 0,
+        "{by_actor} / {by_proposal}"
+    );
     let share = pair.proposal_share();
     assert!((share - by_proposal as f64 / set.rows.len() as f64).abs() < 1e-12);
 

@@ -84,12 +84,11 @@ impl ProposalPair {
             std::fs::read(&path).map_err(|source| ProposalPairError::Io { path, source })
         };
         let settings_path = seed_dir.join("settings.toml");
-        let text = String::from_utf8(read("settings.toml")?).map_err(|e| {
-            ProposalPairError::Settings {
+        let text =
+            String::from_utf8(read("settings.toml")?).map_err(|e| ProposalPairError::Settings {
                 path: settings_path.clone(),
                 why: e.to_string(),
-            }
-        })?;
+            })?;
         let settings: TrainSettings =
             toml::from_str(&text).map_err(|e| ProposalPairError::Settings {
                 path: settings_path.clone(),

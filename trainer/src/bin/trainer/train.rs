@@ -705,19 +705,21 @@ mod tests {
         ));
     }
 
+    /// `trainer train --task stack --preset paper EXTRA` as validated settings.
+    fn validate(extra: &[&str]) -> Result<(), train_settings::SettingsError> {
+        let mut args = vec!["trainer", "train", "--task", "stack", "--preset", "paper"];
+        args.extend_from_slice(extra);
+        let cli = crate::Cli::try_parse_from(args).expect("flags parse");
+        let crate::Command::Train(a) = cli.command else {
+            panic!("not train")
+        };
+        let mut s = TrainSettings::default();
+        apply_flags(&mut s, &a);
+        s.validate()
+    }
+
     #[test]
     fn a_residual_needs_a_base_and_a_width_in_range() {
-        let validate = |extra: &[&str]| {
-            let mut args = vec!["trainer", "train", "--task", "stack", "--preset", "paper"];
-            args.extend_from_slice(extra);
-            let cli = crate::Cli::try_parse_from(args).expect("flags parse");
-            let crate::Command::Train(a) = cli.command else {
-                panic!("not train")
-            };
-            let mut s = TrainSettings::default();
-            apply_flags(&mut s, &a);
-            s.validate()
-        };
         assert!(matches!(
             validate(&["--residual", "64"]),
             Err(train_settings::SettingsError::ResidualWithoutInit)
@@ -738,17 +740,6 @@ mod tests {
 
     #[test]
     fn ibrl_needs_a_starting_policy_and_excludes_a_residual() {
-        let validate = |extra: &[&str]| {
-            let mut args = vec!["trainer", "train", "--task", "stack", "--preset", "paper"];
-            args.extend_from_slice(extra);
-            let cli = crate::Cli::try_parse_from(args).expect("flags parse");
-            let crate::Command::Train(a) = cli.command else {
-                panic!("not train")
-            };
-            let mut s = TrainSettings::default();
-            apply_flags(&mut s, &a);
-            s.validate()
-        };
         assert!(matches!(
             validate(&["--ibrl"]),
             Err(train_settings::SettingsError::IbrlWithoutInit)
