@@ -53,5 +53,5 @@ fn stack_in_hand_policy_succeeds() {
 
 #[test]
 fn stack_policy_succeeds() {
-    check("stack.dxpl", Task::Stack, 47);
+    check("stack.dxpl", Task::Stack, 46);
 }
