@@ -44,10 +44,30 @@ pub fn exact_bits(id: u16, data: &[u8]) -> u32 {
 }
 
 /// Appends the low `n` bits of `value`, most significant first.
-fn push_bits(bits: &mut Vec<bool>, value: u32, n: u32) {
+pub(crate) fn push_bits(bits: &mut Vec<bool>, value: u32, n: u32) {
     for k in (0..n).rev() {
         bits.push((value >> k) & 1 == 1);
     }
+}
+
+/// The positions in `bits` after which a transmitter inserts a stuff bit (after five equal
+/// bits; the stuff bit is their complement and starts the next run). Classic and FD frames
+/// count their dynamic stuff bits with it.
+pub(crate) fn stuff_positions(bits: &[bool]) -> impl Iterator<Item = usize> + '_ {
+    let (mut run, mut last) = (0, None);
+    bits.iter().enumerate().filter_map(move |(i, &b)| {
+        if Some(b) == last {
+            run += 1;
+        } else {
+            run = 1;
+            last = Some(b);
+        }
+        (run == 5).then(|| {
+            last = Some(!b);
+            run = 1;
+            i
+        })
+    })
 }
 
 /// Appends the CRC-15 of `bits` and counts the stuff bits of the whole run.
@@ -61,23 +81,7 @@ fn stuff_bits_with_crc(mut bits: Vec<bool>) -> u32 {
         }
     }
     push_bits(&mut bits, u32::from(crc), 15);
-    let mut stuffed = 0;
-    let (mut run, mut last) = (0, None);
-    for b in bits {
-        if Some(b) == last {
-            run += 1;
-        } else {
-            run = 1;
-            last = Some(b);
-        }
-        if run == 5 {
-            stuffed += 1;
-            // The stuff bit is the complement, and starts the next run.
-            last = Some(!b);
-            run = 1;
-        }
-    }
-    stuffed
+    stuff_positions(&bits).count() as u32
 }
 
 /// How the bus counts a frame's stuff bits.

@@ -21,7 +21,7 @@
 use dex_runtime::can::{AnyFrame, FdFrame};
 use embedded_can::{Frame, Id};
 
-use crate::wire::{Stuffing, WireConfig};
+use crate::wire::{Stuffing, WireConfig, push_bits, stuff_positions};
 
 /// The data lengths of an FD frame and the shortest that holds `n` bytes: the runtime's.
 pub use dex_runtime::can::fd_frame::{FD_LENGTHS, fd_length};
@@ -58,49 +58,33 @@ pub fn fd_bits(extended: bool, data_len: usize, worst_case: bool) -> FdBits {
 /// its data: (up to and including BRS, after it).
 fn exact_stuff_bits(frame: &FdFrame) -> (u32, u32) {
     let mut bits: Vec<bool> = Vec::with_capacity(48 + 8 * frame.data().len());
-    let push = |bits: &mut Vec<bool>, value: u32, n: u32| {
-        for k in (0..n).rev() {
-            bits.push((value >> k) & 1 == 1);
-        }
-    };
     bits.push(false); // start of frame
     match frame.id() {
         Id::Standard(s) => {
-            push(&mut bits, u32::from(s.as_raw()), 11);
+            push_bits(&mut bits, u32::from(s.as_raw()), 11);
             bits.extend([false, false]); // RRS, IDE
         }
         Id::Extended(e) => {
-            push(&mut bits, e.as_raw() >> 18, 11);
+            push_bits(&mut bits, e.as_raw() >> 18, 11);
             bits.extend([true, true]); // SRR, IDE
-            push(&mut bits, e.as_raw() & 0x3_FFFF, 18);
+            push_bits(&mut bits, e.as_raw() & 0x3_FFFF, 18);
             bits.push(false); // RRS
         }
     }
     bits.extend([true, false, frame.bit_rate_switch()]); // FDF, res, BRS
     let nominal_end = bits.len();
     bits.push(false); // ESI (error active)
-    push(&mut bits, u32::from(frame.dlc_code()), 4);
+    push_bits(&mut bits, u32::from(frame.dlc_code()), 4);
     for byte in frame.data() {
-        push(&mut bits, u32::from(*byte), 8);
+        push_bits(&mut bits, u32::from(*byte), 8);
     }
     let (mut nominal, mut data) = (0, 0);
-    let (mut run, mut last) = (0, None);
-    for (i, b) in bits.into_iter().enumerate() {
-        if Some(b) == last {
-            run += 1;
+    for i in stuff_positions(&bits) {
+        // The stuff bit follows bit `i`: at the nominal rate while `i` is before BRS's end.
+        if i + 1 < nominal_end {
+            nominal += 1;
         } else {
-            run = 1;
-            last = Some(b);
-        }
-        if run == 5 {
-            // The stuff bit follows bit `i`: at the nominal rate while `i` is before BRS's end.
-            if i + 1 < nominal_end {
-                nominal += 1;
-            } else {
-                data += 1;
-            }
-            last = Some(!b);
-            run = 1;
+            data += 1;
         }
     }
     (nominal, data)
