@@ -203,6 +203,8 @@ pub struct UpdateBuffers {
     pub(crate) next_act: Vec<f32>,
     pub(crate) y: Vec<f32>,
     pub(crate) dq: Vec<f32>,
+    /// A second row of ratings (IBRL's proposal at the next states).
+    pub(crate) q_alt: Vec<f32>,
     q_demo: Vec<f32>,
     dcritic_in: Vec<f32>,
     dact: Vec<f32>,
@@ -231,6 +233,7 @@ impl UpdateBuffers {
             next_act: vec![0.0; n * nets.act_dim],
             y: vec![0.0; n],
             dq: vec![0.0; n],
+            q_alt: vec![0.0; n],
             q_demo: vec![0.0; n],
             dcritic_in: vec![0.0; n * ci],
             dact: vec![0.0; n * nets.act_dim],
@@ -332,25 +335,13 @@ pub fn critic_targets(
         ad,
         &mut bufs.critic_in,
     );
-    let twin = !std::ptr::eq(target_critics[0], target_critics[1]);
-    let q_next = nets.critic.forward(
-        target_critics[0],
+    rate_min(
+        nets,
+        target_critics,
         &bufs.critic_in[..n * ci],
-        n,
         &mut bufs.critic_s,
+        &mut bufs.dq[..n],
     )?;
-    bufs.dq[..n].copy_from_slice(&q_next[..n]);
-    if twin {
-        let q2 = nets.critic.forward(
-            target_critics[1],
-            &bufs.critic_in[..n * ci],
-            n,
-            &mut bufs.critic_s,
-        )?;
-        for (q, &q2) in bufs.dq[..n].iter_mut().zip(q2) {
-            *q = q.min(q2);
-        }
-    }
     for (((y, &r), &nd), &q) in bufs.y[..n]
         .iter_mut()
         .zip(&bufs.batch.reward)
@@ -358,6 +349,27 @@ pub fn critic_targets(
         .zip(&bufs.dq[..n])
     {
         *y = r + gamma * nd * q;
+    }
+    Ok(())
+}
+
+/// The critics' rating of the rows `[obs | act]` of `input` (one per value of `out`) into `out`:
+/// the first critic's, or the smaller of the two when `critics` holds two different parameter
+/// sets (pass the same one twice for a single critic).
+pub(crate) fn rate_min(
+    nets: &Networks,
+    critics: [&[f32]; 2],
+    input: &[f32],
+    scratch: &mut MlpScratch,
+    out: &mut [f32],
+) -> Result<(), LearnError> {
+    let n = out.len();
+    out.copy_from_slice(&nets.critic.forward(critics[0], input, n, scratch)?[..n]);
+    if !std::ptr::eq(critics[0], critics[1]) {
+        let q2 = nets.critic.forward(critics[1], input, n, scratch)?;
+        for (q, &q2) in out.iter_mut().zip(q2) {
+            *q = q.min(q2);
+        }
     }
     Ok(())
 }

@@ -18,7 +18,7 @@
 //! [`RunConfig::ibrl`]: crate::learn::RunConfig::ibrl
 
 use super::LearnError;
-use super::ddpg::{Networks, UpdateBuffers, concat};
+use super::ddpg::{Networks, UpdateBuffers, concat, rate_min};
 use super::nets::MlpScratch;
 
 /// The buffers [`choose`] needs for one observation: the proposal's forward pass and the critic's
@@ -70,35 +70,27 @@ pub fn choose(
         });
     }
     let proposed = nets.actor.forward(proposal, obs, 1, &mut scratch.actor)?;
-    let rows = [&*action, proposed].concat();
-    let obs2 = [obs, obs].concat();
-    concat(&obs2, &rows, 2, od, ad, &mut scratch.critic_in);
-    let q = rated(nets, critics, &scratch.critic_in, 2, &mut scratch.critic)?;
+    // Rows [obs | action] and [obs | proposed], written in place (this runs every step).
+    let ci = od + ad;
+    let rows = &mut scratch.critic_in;
+    rows[..od].copy_from_slice(obs);
+    rows[od..ci].copy_from_slice(action);
+    rows[ci..ci + od].copy_from_slice(obs);
+    rows[ci + od..2 * ci].copy_from_slice(&proposed[..ad]);
+    let mut q = [0.0f32; 2];
+    rate_min(
+        nets,
+        critics,
+        &scratch.critic_in,
+        &mut scratch.critic,
+        &mut q,
+    )?;
     if q[1] > q[0] {
-        action.copy_from_slice(&rows[ad..]);
+        action.copy_from_slice(&scratch.critic_in[ci + od..2 * ci]);
         Ok(Chosen::Proposal)
     } else {
         Ok(Chosen::Actor)
     }
-}
-
-/// The critics' rating of `n` rows `[obs | act]`: the first critic's, or the smaller of the two
-/// when `critics` holds two different parameter sets.
-fn rated(
-    nets: &Networks,
-    critics: [&[f32]; 2],
-    input: &[f32],
-    n: usize,
-    scratch: &mut MlpScratch,
-) -> Result<Vec<f32>, LearnError> {
-    let mut q = nets.critic.forward(critics[0], input, n, scratch)?.to_vec();
-    if !std::ptr::eq(critics[0], critics[1]) {
-        let q2 = nets.critic.forward(critics[1], input, n, scratch)?;
-        for (a, &b) in q.iter_mut().zip(q2) {
-            *a = a.min(b);
-        }
-    }
-    Ok(q)
 }
 
 /// After [`super::ddpg::critic_targets`] (which left the actor's bootstrap values in the
@@ -132,15 +124,15 @@ pub fn bootstrap_with_proposal(
         ad,
         &mut bufs.critic_in,
     );
-    let q = rated(
+    rate_min(
         nets,
         target_critics,
         &bufs.critic_in[..n * (od + ad)],
-        n,
         &mut bufs.critic_s,
+        &mut bufs.q_alt[..n],
     )?;
-    for (i, qp) in q.into_iter().enumerate() {
-        let best = bufs.dq[i].max(qp);
+    for i in 0..n {
+        let best = bufs.dq[i].max(bufs.q_alt[i]);
         bufs.dq[i] = best;
         bufs.y[i] = bufs.batch.reward[i] + gamma * bufs.batch.not_done[i] * best;
     }
