@@ -62,6 +62,10 @@ pub const CALIBRATION_SEED: u64 = 8_000_000;
 /// starts, so no reported figure is drawn from them.
 pub const SCREEN_SEED: u64 = 9_000_000;
 
+/// Start seed of the critic-ranking states (`trainer critic-rank`, `dex_trainer::cell::critic_ranking`):
+/// state `i` is along the episode from `episode_seed(RANKING_SEED, i)`.
+pub const RANKING_SEED: u64 = 10_000_000;
+
 /// Trajectory `i` of a demonstration pool (`start.demonstrations`) starts from the original start
 /// of seed `POOL_SEED_BASE + i` ([`crate::start_states`]): far above every range above and the
 /// learner's episode seeds.
@@ -83,6 +87,7 @@ mod tests {
             HELDOUT_SEED,
             CALIBRATION_SEED,
             SCREEN_SEED,
+            RANKING_SEED,
             POOL_SEED_BASE,
         ];
         for (i, a) in all.iter().enumerate() {

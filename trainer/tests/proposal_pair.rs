@@ -9,6 +9,7 @@ use std::sync::atomic::AtomicBool;
 
 use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::cell::proposal_pair::{ProposalPair, ProposalPairError};
+use dex_trainer::cell::run_folder::RunFolderError;
 use dex_trainer::env::Task;
 use dex_trainer::files::demos::{Keep, RecordMode, RecordSettings, record_with};
 use dex_trainer::learn::Trainer;
@@ -145,7 +146,7 @@ fn a_pair_labels_with_the_better_rated_action_and_bad_pairs_are_refused() {
     ));
     assert!(matches!(
         ProposalPair::from_run(&plain.join("nothing")),
-        Err(ProposalPairError::Io { .. })
+        Err(ProposalPairError::Run(RunFolderError::Io { .. }))
     ));
 
     // Distilling a Reach pair into a Grasp network, or with two teachers, is refused before

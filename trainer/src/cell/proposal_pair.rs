@@ -8,11 +8,12 @@ use std::path::{Path, PathBuf};
 use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::ACT_DIM;
 
+use crate::cell::run_folder::{RunFolderError, load_run};
 use crate::env::{Demonstration, EnvError, JacoEnv};
 use crate::learn::ibrl::{Chosen, ProposalScratch, choose};
 use crate::learn::nets::MlpScratch;
-use crate::learn::{LearnError, Networks, Trainer};
-use crate::pipeline::train_settings::{TaskArg, TrainSettings};
+use crate::learn::{LearnError, Networks};
+use crate::pipeline::train_settings::TaskArg;
 
 /// Why an IBRL run's folder cannot be a teacher.
 #[derive(Debug, thiserror::Error)]
@@ -25,22 +26,9 @@ pub enum ProposalPairError {
         /// The error.
         source: std::io::Error,
     },
-    /// The run's settings could not be read.
-    #[error("{path}: not a run's settings: {why}")]
-    Settings {
-        /// The file.
-        path: PathBuf,
-        /// What failed.
-        why: String,
-    },
-    /// The run's checkpoint could not be loaded.
-    #[error("{path}: {source}")]
-    Checkpoint {
-        /// The file.
-        path: PathBuf,
-        /// The error.
-        source: LearnError,
-    },
+    /// The run's folder could not be read back.
+    #[error(transparent)]
+    Run(#[from] RunFolderError),
     /// The run is not an IBRL run, or its networks cannot be paired as they are.
     #[error("{dir}: {why}")]
     NotAPair {
@@ -79,26 +67,7 @@ impl ProposalPair {
     /// run's task. The run must have `ibrl` on and its observation normalisation off (the pair
     /// then takes the observation as the learner's environment gives it).
     pub fn from_run(seed_dir: &Path) -> Result<(Self, TaskArg), ProposalPairError> {
-        let read = |name: &str| {
-            let path = seed_dir.join(name);
-            std::fs::read(&path).map_err(|source| ProposalPairError::Io { path, source })
-        };
-        let settings_path = seed_dir.join("settings.toml");
-        let text =
-            String::from_utf8(read("settings.toml")?).map_err(|e| ProposalPairError::Settings {
-                path: settings_path.clone(),
-                why: e.to_string(),
-            })?;
-        let settings: TrainSettings =
-            toml::from_str(&text).map_err(|e| ProposalPairError::Settings {
-                path: settings_path.clone(),
-                why: e.to_string(),
-            })?;
-        let ckpt = seed_dir.join("checkpoint.bin");
-        let t = Trainer::load(&ckpt).map_err(|source| ProposalPairError::Checkpoint {
-            path: ckpt.clone(),
-            source,
-        })?;
+        let (settings, t) = load_run(seed_dir)?;
         let not = |why| {
             Err(ProposalPairError::NotAPair {
                 dir: seed_dir.to_owned(),

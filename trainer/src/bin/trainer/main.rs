@@ -14,6 +14,7 @@
 //! ```
 
 mod compare;
+mod critic_rank;
 mod demos;
 mod distributed;
 mod eval_flags;
@@ -68,6 +69,8 @@ pub(crate) enum Command {
     Imitate(imitate::ImitateArgs),
     /// Weight-space average of policy files of one network (seeds of a fine-tune, their clone).
     Soup(soup::SoupArgs),
+    /// Whether a run's critic orders actions as rollouts in the simulator do.
+    CriticRank(critic_rank::CriticRankArgs),
     /// The toy point-mass task across MPI ranks (a check of the distributed learner; under mpirun).
     #[command(hide = true)]
     DistributedPointMass(distributed::PointMassArgs),
@@ -397,6 +400,7 @@ fn main() -> anyhow::Result<()> {
         Command::Clone(args) => demos::clone(&args),
         Command::Imitate(args) => imitate::imitate(&args),
         Command::Soup(args) => soup::soup_files(&args),
+        Command::CriticRank(args) => critic_rank::critic_rank(&args),
         Command::Plot { run } => {
             let files = train::plot_run(&run)?;
             for f in files {
