@@ -114,9 +114,11 @@ pub struct RaterStats {
     /// Agreement within each quarter of the pairs by the size of their true gap (smallest
     /// first; the bounds are in [`RankingReport::gap_quartiles`]).
     pub agreement_by_gap: [f64; 4],
-    /// Share of states whose best-rated candidate is the truly best one (chance: one over the
-    /// candidates).
+    /// Of the states whose candidates' true values are not all equal, the share where the
+    /// best-rated candidate is a truly best one (ties count).
     pub best_match: f64,
+    /// What choosing a candidate at random gives on those states.
+    pub best_chance: f64,
     /// Correlation of the rater's and the true values after each state's mean is taken out of
     /// both (how much of the within-state spread the rater sees).
     pub within_state_correlation: f64,
@@ -139,6 +141,10 @@ pub struct RankingReport {
     pub gamma: f32,
     /// The raters: `critic` (the one the actor follows), and `min of twin` with two critics.
     pub raters: Vec<String>,
+    /// Share of candidate pairs whose true values are equal (the reward sequence did not change).
+    pub tied_pairs: f64,
+    /// States whose candidates' true values are not all equal.
+    pub states_with_gap: u32,
     /// Bounds of the quarters of the pairs' true gaps (25th, 50th and 75th percentiles).
     pub gap_quartiles: [f64; 3],
     /// Mean true value of the actor's own action.
@@ -332,6 +338,12 @@ impl RankedRun {
                 .unwrap_or(0.0)
         };
         let gap_quartiles = [q(0.25), q(0.5), q(0.75)];
+        let all_pairs: usize = per_state
+            .iter()
+            .map(|st| st.true_q.len() * st.true_q.len().saturating_sub(1) / 2)
+            .sum();
+        let tied_pairs = 1.0 - gaps.len() as f64 / all_pairs.max(1) as f64;
+        let states_with_gap = per_state.iter().filter(|st| has_gap(&st.true_q)).count() as u32;
         let n = per_state.len().max(1) as f64;
         let mean_actor_q = per_state.iter().map(|st| st.true_q[0]).sum::<f64>() / n;
         let actor_beaten = per_state
@@ -352,6 +364,8 @@ impl RankedRun {
             seed: s.seed,
             gamma: self.gamma,
             raters,
+            tied_pairs,
+            states_with_gap,
             gap_quartiles,
             mean_actor_q,
             actor_beaten,
@@ -364,6 +378,11 @@ impl RankedRun {
 /// Every pair `(i, j)`, `i < j`, of `k` candidates.
 fn pairs(k: usize) -> impl Iterator<Item = (usize, usize)> {
     (0..k).flat_map(move |i| (i + 1..k).map(move |j| (i, j)))
+}
+
+/// Whether some of `v` differ.
+fn has_gap(v: &[f64]) -> bool {
+    v.iter().any(|&x| x != v[0])
 }
 
 /// The index of the largest value (the first of equals).
@@ -380,7 +399,7 @@ fn argmax<T: PartialOrd + Copy>(v: &[T]) -> usize {
 fn rater_stats(name: &str, r: usize, states: &[StateRanking], quartiles: &[f64; 3]) -> RaterStats {
     let (mut pairs_n, mut agree) = (0u64, 0u64);
     let mut by_gap = [(0u64, 0u64); 4];
-    let mut best = 0usize;
+    let (mut best, mut chance, mut gapped) = (0usize, 0.0f64, 0usize);
     let (mut sxy, mut sxx, mut syy) = (0.0f64, 0.0f64, 0.0f64);
     for st in states {
         let rated = &st.rated[r];
@@ -397,8 +416,12 @@ fn rater_stats(name: &str, r: usize, states: &[StateRanking], quartiles: &[f64; 
             by_gap[bin].0 += 1;
             by_gap[bin].1 += ok;
         }
-        if argmax(rated) == argmax(&st.true_q) {
-            best += 1;
+        if has_gap(&st.true_q) {
+            let top = st.true_q[argmax(&st.true_q)];
+            gapped += 1;
+            best += usize::from(st.true_q[argmax(rated)] == top);
+            let ties = st.true_q.iter().filter(|&&v| v == top).count();
+            chance += ties as f64 / st.true_q.len() as f64;
         }
         let k = st.true_q.len() as f64;
         let mt = st.true_q.iter().sum::<f64>() / k;
@@ -416,7 +439,8 @@ fn rater_stats(name: &str, r: usize, states: &[StateRanking], quartiles: &[f64; 
         pairs: pairs_n,
         agreement: share(agree, pairs_n),
         agreement_by_gap: by_gap.map(|(n, a)| share(a, n)),
-        best_match: best as f64 / states.len().max(1) as f64,
+        best_match: best as f64 / gapped.max(1) as f64,
+        best_chance: chance / gapped.max(1) as f64,
         within_state_correlation: if sxx > 0.0 && syy > 0.0 {
             sxy / (sxx * syy).sqrt()
         } else {
@@ -448,6 +472,7 @@ mod tests {
         assert_eq!(s.pairs, 6);
         assert_eq!(s.agreement, 1.0);
         assert_eq!(s.best_match, 1.0);
+        assert!((s.best_chance - 1.0 / 3.0).abs() < 1e-12);
         assert!((s.within_state_correlation - 1.0).abs() < 1e-9);
         let reversed: Vec<_> = states
             .iter()
@@ -471,6 +496,9 @@ mod tests {
         // (0,1) gap 1 agrees -> bin 0; (0,2) gap 3 disagrees -> bin 2; (1,2) gap 2 disagrees -> bin 1.
         assert_eq!(s.agreement_by_gap, [1.0, 0.0, 0.0, 0.0]);
         assert!((s.agreement - 1.0 / 3.0).abs() < 1e-12);
+        // Only the first state has a gap; its best-rated candidate (1) is not its best (2).
+        assert_eq!(s.best_match, 0.0);
+        assert!((s.best_chance - 1.0 / 3.0).abs() < 1e-12);
     }
 
     #[test]

@@ -78,12 +78,17 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
         100.0 * report.actor_beaten
     );
     println!(
-        "  true gaps between candidates: quartiles {:.4} / {:.4} / {:.4}",
-        report.gap_quartiles[0], report.gap_quartiles[1], report.gap_quartiles[2]
+        "  {:.1}% of candidate pairs have equal true values; {} of {} states have a gap; gaps' quartiles {:.4} / {:.4} / {:.4}",
+        100.0 * report.tied_pairs,
+        report.states_with_gap,
+        report.states,
+        report.gap_quartiles[0],
+        report.gap_quartiles[1],
+        report.gap_quartiles[2]
     );
     for s in &report.stats {
         println!(
-            "  {:<12} pairs ordered right {:.1}% of {} (by gap quarter {:.1} / {:.1} / {:.1} / {:.1}%), best candidate found {:.1}% (chance {:.1}%), within-state correlation {:.3}",
+            "  {:<12} pairs ordered right {:.1}% of {} (by gap quarter {:.1} / {:.1} / {:.1} / {:.1}%), a best candidate found {:.1}% (chance {:.1}%), within-state correlation {:.3}",
             s.rater,
             100.0 * s.agreement,
             s.pairs,
@@ -92,7 +97,7 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
             100.0 * s.agreement_by_gap[2],
             100.0 * s.agreement_by_gap[3],
             100.0 * s.best_match,
-            100.0 / f64::from(report.candidates),
+            100.0 * s.best_chance,
             s.within_state_correlation
         );
     }
