@@ -48,7 +48,7 @@ fn reach_run(name: &str, twin: bool, obs_norm: bool) -> std::path::PathBuf {
 fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
     let dir = reach_run("twin", true, false);
     let run = RankedRun::from_run(&dir).unwrap();
-    assert_eq!(run.raters(), ["critic", "min of twin"]);
+    assert_eq!(run.raters(), ["critic", "min of twin", "mean of twin"]);
     let settings = RankingSettings {
         states: 3,
         candidates: 3,
@@ -101,6 +101,7 @@ fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
         let (q1, q2) = (q(t.critic().1), q(t.twin_critic().unwrap()));
         assert_eq!(st.rated[0][0], q1);
         assert_eq!(st.rated[1][0], q1.min(q2));
+        assert_eq!(st.rated[2][0], (q1 + q2) / 2.0);
         let (mut g, mut discount) = (0.0f64, 1.0f64);
         for _ in 0..settings.horizon {
             let out = env.step(&a).unwrap();

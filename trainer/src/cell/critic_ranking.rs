@@ -139,7 +139,8 @@ pub struct RankingReport {
     pub seed: u64,
     /// The run's discount.
     pub gamma: f32,
-    /// The raters: `critic` (the one the actor follows), and `min of twin` with two critics.
+    /// The raters: `critic` (the one the actor follows), and with two critics `min of twin` (what
+    /// the TD targets use) and `mean of twin` (what an ensemble's actor would follow).
     pub raters: Vec<String>,
     /// Share of candidate pairs whose true values are equal (the reward sequence did not change).
     pub tied_pairs: f64,
@@ -194,6 +195,7 @@ impl RankedRun {
         let mut r = vec!["critic".to_string()];
         if self.critics.len() > 1 {
             r.push("min of twin".to_string());
+            r.push("mean of twin".to_string());
         }
         r
     }
@@ -313,6 +315,12 @@ impl RankedRun {
                             .map(|q| q[j])
                             .fold(f32::INFINITY, f32::min)
                     })
+                    .collect(),
+            );
+            let n = per_critic.len() as f32;
+            rated.push(
+                (0..k)
+                    .map(|j| per_critic.iter().map(|q| q[j]).sum::<f32>() / n)
                     .collect(),
             );
         }
