@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use crate::env::{EnvConfig, EnvError, Reward, StartScheme, Task};
 use crate::learn::bc::BcConfig;
 use crate::learn::{LearnError, RunConfig, TargetUpdate};
+use crate::pipeline::clone_members::{self, CloneMember, Ensemble, MembersError};
 use crate::pipeline::imitation::{ImitationConfig, ImitationError};
 
 /// Why settings could not be loaded, or are not valid.
@@ -158,6 +159,9 @@ pub enum SettingsError {
     /// The clone stage's imitation settings are out of range.
     #[error("invalid [clone] settings")]
     Clone(#[source] ImitationError),
+    /// The clone stage's members or distillation are refused (for one of the run's seeds).
+    #[error("invalid [clone] members or distillation")]
+    CloneMembers(#[source] MembersError),
 }
 
 /// A key of a settings file that no setting has, by its dotted path (`run.updates_per_step`).
@@ -371,7 +375,9 @@ pub struct TrainSettings {
     pub features: bool,
     /// The clone stage (`[clone]`, `--clone`): before each seed's reinforcement learning, the
     /// imitation learner clones the Markov demonstrator into `OUT/clone/seed-S` and the seed's
-    /// actor starts from that file, as it would from `init_policy` (which must then be unset).
+    /// actor starts from that file, as it would from `init_policy` (which must then be unset);
+    /// with members ([`CloneStage::members`]) the stage is an ensemble of clones distilled into
+    /// one network, whose file the actor starts from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub clone: Option<CloneStage>,
     /// The guard of a run that starts from a policy (`init_policy` or the clone stage): at the
@@ -392,6 +398,13 @@ fn is_zero(n: &u32) -> bool {
 /// The clone stage of a pipeline run: `trainer imitate`'s recipe for the task
 /// ([`ImitationConfig::for_task`]) with the run's seed, actor sizes, task features and evaluation
 /// threads; each field, when set, overrides the recipe's.
+///
+/// Without members that is the stage: one imitation run per seed, in `OUT/clone/seed-S`. With
+/// members (`[[clone.members]]`) it is an ensemble and its distillation
+/// ([`crate::pipeline::clone_members`]): each member entry's runs (the recipe with the entry's
+/// tweaks, at seeds derived from the pipeline seed) in `OUT/clone/seed-S/NAME-sK`, then one
+/// network taught by the mean of their files over `distil_rounds` DAgger rounds in
+/// `OUT/clone/seed-S/distil`, whose last round's file starts the fine-tune.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CloneStage {
@@ -410,6 +423,18 @@ pub struct CloneStage {
     /// Selection starts of the clone.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub select_episodes: Option<u32>,
+    /// With members: DAgger rounds of the distillation (unset:
+    /// [`clone_members::DEFAULT_DISTIL_ROUNDS`]); its last round's file starts the fine-tune.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distil_rounds: Option<u32>,
+    /// With members: policy episodes labelled per distillation round (unset:
+    /// [`clone_members::DEFAULT_DISTIL_EPISODES_PER_ROUND`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distil_episodes_per_round: Option<u32>,
+    /// The ensemble (`[[clone.members]]`; empty: a single clone), in the order their files enter
+    /// the distillation's mean.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub members: Vec<CloneMember>,
 }
 
 impl CloneStage {
@@ -431,6 +456,29 @@ impl CloneStage {
             eval_threads: s.eval_threads,
             ..base
         }
+    }
+
+    /// The ensemble and distillation of seed `seed` of a run with settings `s`, its members' files
+    /// in `OUT/clone/seed-S` (None: no members, a single clone).
+    pub fn ensemble(&self, s: &TrainSettings, seed: u64) -> Result<Option<Ensemble>, MembersError> {
+        if self.members.is_empty() {
+            clone_members::check_members(
+                &self.members,
+                self.distil_rounds,
+                self.distil_episodes_per_round,
+            )?;
+            return Ok(None);
+        }
+        let dir = s.out.join("clone").join(format!("seed-{seed}"));
+        Ensemble::new(
+            &self.imitation(s, seed),
+            &self.members,
+            self.distil_rounds,
+            self.distil_episodes_per_round,
+            seed,
+            &dir,
+        )
+        .map(Some)
     }
 }
 
@@ -818,6 +866,11 @@ impl TrainSettings {
                 .imitation(self, 0)
                 .validate()
                 .map_err(SettingsError::Clone)?;
+            for &seed in &self.seeds {
+                stage
+                    .ensemble(self, seed)
+                    .map_err(SettingsError::CloneMembers)?;
+            }
         }
         Ok(())
     }
@@ -921,5 +974,80 @@ mod tests {
         let text = s.to_toml().unwrap();
         let back: TrainSettings = toml::from_str(&text).unwrap();
         assert_eq!(back, s);
+    }
+
+    #[test]
+    fn members_in_a_settings_file_and_their_refusals() {
+        let dir = std::env::temp_dir().join(format!("dex-cfg-members-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("members.toml");
+        let base = "task = \"grasp\"\nseeds = [1]\nfeatures = true\n[clone]\nbc_steps = 100\n\
+                    distil_rounds = 2\n[[clone.members]]\nname = \"a\"\nseeds = [0, 1]\n\
+                    [[clone.members]]\nname = \"b\"\nseeds = [0]\nclose_bursts = 0.02\n\
+                    tuck_first = true\n";
+        let load_with = |text: &str| {
+            std::fs::write(&path, text).unwrap();
+            load(Some(&path))
+        };
+        let s = load_with(base).unwrap();
+        let stage = s.clone.as_ref().unwrap();
+        assert_eq!(stage.members.len(), 2);
+        assert_eq!(stage.members[1].close_bursts, Some(0.02));
+        assert!(stage.members[1].tuck_first && !stage.members[0].tuck_first);
+        s.validate().unwrap();
+        let e = stage.ensemble(&s, 1).unwrap().unwrap();
+        assert_eq!(e.members.len(), 3);
+        assert_eq!(e.members[2].config.bc.steps, 100, "the stage's overrides");
+        assert_eq!((e.distil.rounds, e.distil.episodes_per_round), (2, 400));
+        // Written into the run folder and read back.
+        let back: TrainSettings = toml::from_str(&s.to_toml().unwrap()).unwrap();
+        assert_eq!(back, s);
+        // A typo inside a member entry is an error.
+        assert!(load_with(&base.replace("tuck_first", "tuck_frist")).is_err());
+        let refused = |text: &str| load_with(text).unwrap().validate().unwrap_err();
+        let members = |e: SettingsError| match e {
+            SettingsError::CloneMembers(m) => m,
+            other => panic!("{other}"),
+        };
+        assert!(matches!(
+            members(refused(&base.replace("seeds = [0]", "seeds = []"))),
+            MembersError::NoSeeds { .. }
+        ));
+        assert!(matches!(
+            members(refused(
+                &base.replace("distil_rounds = 2", "distil_rounds = 0")
+            )),
+            MembersError::NoDistilRounds
+        ));
+        assert!(matches!(
+            members(refused(
+                &base.replace("distil_rounds = 2", "distil_episodes_per_round = 0")
+            )),
+            MembersError::NoDistilEpisodes
+        ));
+        assert!(matches!(
+            members(refused(&base.replace("seeds = [1]", "seeds = [1, 0]"))),
+            MembersError::NegativeSeed {
+                pipeline_seed: 0,
+                ..
+            }
+        ));
+        assert!(matches!(
+            members(refused(&base.replace("name = \"b\"", "name = \"a\""))),
+            MembersError::Duplicate { .. }
+        ));
+        // Distillation settings without members.
+        let single = "task = \"grasp\"\nfeatures = true\n[clone]\ndistil_rounds = 1\n";
+        assert!(matches!(
+            members(refused(single)),
+            MembersError::DistilWithoutMembers
+        ));
+        // Members and an init_policy: two starting points.
+        let init = base.replace(
+            "features = true\n",
+            "features = true\ninit_policy = \"p.dxpl\"\n",
+        );
+        assert!(matches!(refused(&init), SettingsError::CloneAndInitPolicy));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -307,6 +307,41 @@ impl Terminal {
                 "seed {seed}: clone stage (the imitation learner) in {}",
                 dir.display()
             ),
+            TrainEvent::EnsembleStarted {
+                seed,
+                dir,
+                members,
+                parallel,
+            } => println!(
+                "seed {seed}: {members} member clones, {parallel} at a time, in {}, then one \
+                 network distilled from their mean",
+                dir.display()
+            ),
+            TrainEvent::MemberStarted {
+                seed,
+                member,
+                member_seed,
+            } => println!("seed {seed}: member {member} (imitation seed {member_seed}) started"),
+            TrainEvent::Member {
+                seed,
+                member,
+                event,
+            } => show_member(seed, member, event),
+            TrainEvent::MemberDone {
+                seed,
+                member,
+                policy,
+            } => println!("seed {seed}: member {member} done: {}", policy.display()),
+            TrainEvent::DistilStarted {
+                seed,
+                dir,
+                teachers,
+                rounds,
+            } => println!(
+                "seed {seed}: distilling the mean of {teachers} members into one network \
+                 ({rounds} DAgger round(s)) in {}",
+                dir.display()
+            ),
             TrainEvent::Clone { seed, event } => self.show_clone(seed, event),
             TrainEvent::Cloned { seed, policy } => {
                 if let Some(pb) = self.bar.take() {
@@ -471,6 +506,27 @@ impl Terminal {
                 );
             }
         }
+    }
+}
+
+/// A member clone's progress, one line per milestone (members run side by side, so no bars).
+fn show_member(seed: u64, member: &str, event: ImitationEvent<'_>) {
+    match event {
+        ImitationEvent::Recording { round, episodes } => {
+            println!("seed {seed}: member {member} round {round}: recording {episodes} episodes");
+        }
+        ImitationEvent::Cloning { round, steps } => {
+            println!("seed {seed}: member {member} round {round}: {steps} cloning steps");
+        }
+        ImitationEvent::CloneStep(..) => {}
+        ImitationEvent::Round(r) => println!(
+            "seed {seed}: member {member} round {}: {} env steps, {:.0} s: selection success \
+             {:.1}%",
+            r.eval_index,
+            r.transitions,
+            r.wall_s,
+            100.0 * r.success_rate
+        ),
     }
 }
 
@@ -784,5 +840,6 @@ mod tests {
         // --clone alone adds the stage to the run's own learner.
         let s = settings(&["--task", "grasp", "--clone", "--hidden", "64,64"]);
         assert!(s.clone.is_some() && s.run.demos.bc_weight != 5.0);
+        assert!(s.clone.as_ref().unwrap().members.is_empty());
     }
 }
