@@ -1,35 +1,28 @@
 #!/usr/bin/env bash
 # The shipped Grasp policy (policies/grasp.dxpl since session 22; docs/experiments.md, session 22,
-# confirmation 8): eight Grasp clones of the imitation learner, then one network distilled from the
-# mean of their actions with two DAgger rounds; the shipped file is round 1 of seed 1.
-# Usage: bash experiments/grasp-distil.sh [OUT]   (default runs/grasp-distil; resumes: each
-# trainer imitate run folder redoes nothing it has). Two members run at a time (one per core).
-# Compute on dev-2c (2 cores, 2026-12-04): about 16 min of wall in all (the members two at a time,
-# then the distillation's three rounds, 301 s); it reproduced policies/grasp.dxpl bit for bit.
+# confirmation 8): eight Grasp clones of the imitation learner (the default recipe's seeds 0-3,
+# close bursts 0.02 seeds 0-1, the teacher that tucks first seeds 0-1), then one network distilled
+# from the mean of their actions; the shipped file is the distillation's round 1.
+# Since session 24 that is the clone stage of `trainer train --task grasp`'s default pipeline at
+# seed 1 ([[clone.members]], docs/learner.md "A clone stage of members"): the members two at a
+# time in OUT/clone/seed-1/NAME-sK, the distillation (one DAgger round of 400 episodes) in
+# OUT/clone/seed-1/distil, whose round 1 is the shipped file; the command then fine-tunes that
+# file with the RL learner and guards the fine-tune against it (OUT/seed-1/guard.json says which
+# of the two OUT/seed-1/policy.dxpl is).
+# Usage: bash experiments/grasp-distil.sh [OUT]   (default runs/grasp-distil; the same command
+# resumes a stopped or killed run, redoing no finished member).
+# Verified in session 24 (dev-2c, 2 cores shared with two other jobs, load about 4, 2026-12-05
+# 02:24-02:48 UTC): the eight members are bit for bit those of session 22's run of the imitate
+# commands (runs/s22/repro), and the distilled file is policies/grasp.dxpl (sha256 705517b6d437...):
+# a distillation of one round makes the round-1 file of the two-round run the file came from.
+# 24 min of wall in all (1414 s of CPU): members 15.1 min two at a time, distillation 3.7 min,
+# fine-tune and guard 5.3 min. Its guard tied (497 against 497 of 500 selection starts) and a tie
+# ships the fine-tune, so OUT/seed-1/policy.dxpl is not the shipped file.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/grasp-distil}
 bin=$(cargo metadata --format-version 1 --no-deps |
   python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/trainer
 [ -x "$bin" ] || cargo build --release -p dex-trainer --bin trainer
-mkdir -p "$out"
-member() { # NAME SEED FLAGS...
-  local name=$1 seed=$2
-  shift 2
-  "$bin" imitate --task grasp --seeds "$seed" "$@" --final-eval-episodes 0 --quiet \
-    --out "$out/$name" > "$out/$name.log" 2>&1
-}
-# The members: the default recipe's seeds 0-3 (seed 0 is the clone shipped before session 22),
-# close bursts 0.02 seeds 0-1, the teacher that tucks first seeds 0-1 (sessions 20-21).
-member def-s0 0 & member def-s1 1; wait
-member def-s2 2 & member def-s3 3; wait
-member cb-s0 0 --close-bursts 0.02 & member cb-s1 1 --close-bursts 0.02; wait
-member tf-s0 0 --tuck-first & member tf-s1 1 --tuck-first; wait
-teachers=""
-for m in def-s0:0 def-s1:1 def-s2:2 def-s3:3 cb-s0:0 cb-s1:1 tf-s0:0 tf-s1:1; do
-  teachers="$teachers${teachers:+,}$out/${m%%:*}/seed-${m##*:}/policy.dxpl"
-done
-"$bin" imitate --task grasp --teacher-policies "$teachers" --rounds 2 --episodes-per-round 400 \
-  --seeds 1 --final-eval-episodes 0 --quiet --out "$out/distil"
-cp "$out/distil/seed-1/policy-1.dxpl" "$out/grasp.dxpl"
-sha256sum "$out/grasp.dxpl" policies/grasp.dxpl
+"$bin" train --task grasp --seeds 1 --out "$out" --resume
+sha256sum "$out/clone/seed-1/distil/policy-1.dxpl" policies/grasp.dxpl

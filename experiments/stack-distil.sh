@@ -1,35 +1,33 @@
 #!/usr/bin/env bash
 # The shipped Stack policy (policies/stack.dxpl since session 23; docs/experiments.md, session 23,
 # confirmation 11): seven Stack clones of the imitation learner (Stack's recipe, seeds 1-7), then
-# one network distilled from the mean of their actions with one DAgger round; the shipped file is
-# round 1 of seed 1.
-# Usage: bash experiments/stack-distil.sh [OUT]   (default runs/stack-distil; resumes: each
-# trainer imitate run folder redoes nothing it has). Two members run at a time (one per core).
+# one network distilled from the mean of their actions with one DAgger round of 400 episodes; the
+# shipped file is the distillation's round 1.
+# Since session 24 that is the clone stage of `trainer train --task stack`'s default pipeline at
+# seed 1 ([[clone.members]], docs/learner.md "A clone stage of members"): the members two at a
+# time in OUT/clone/seed-1/default-sK, the distillation in OUT/clone/seed-1/distil, whose round 1
+# is the file; the command then fine-tunes that file with the RL learner and guards the fine-tune
+# against it (OUT/seed-1/guard.json says which of the two OUT/seed-1/policy.dxpl is).
+# Usage: bash experiments/stack-distil.sh [OUT]   (default runs/stack-distil; the same command
+# resumes a stopped or killed run, redoing no finished member).
 # Compute on dev-2c (2 cores, 2026-12-04/05): members 553-945 s each on a loaded core, the
-# distillation 943 s; about 50 min of wall in all by these figures. Not yet run end to end: the
+# distillation 943 s; about 50 min of wall to the distilled file by these figures, then the
+# fine-tune (40,000 transitions) and the guard (500 starts). Not yet run end to end: the
 # shipped file's members are session 14's clone (seed 1), session 22's seeds 2-3 and session 23's
-# seeds 4-7, each made by the command below in its session (seed 1 on another machine, whose GEMM
-# may round differently), so a fresh run may differ from policies/stack.dxpl in its bits.
+# seeds 4-7, each made by `trainer imitate --task stack --seeds K` in its session (seed 1 on
+# another machine, whose GEMM may round differently), so a fresh run may differ from
+# policies/stack.dxpl in its bits. Checked in session 24 without running it: the pipeline's
+# member of seed 2 has the settings of session 22's run of that seed (settings.json: only
+# eval_threads differs, 1 against 2, which no file's bits depend on; the members differ only in
+# their seeds), and its distillation has those of session 23's (the teacher's paths aside;
+# test the_default_members_at_seed_one_are_the_shipped_recipes in
+# trainer/src/pipeline/train_settings.rs). On Grasp the same stage reproduced the shipped file
+# bit for bit (experiments/grasp-distil.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/stack-distil}
 bin=$(cargo metadata --format-version 1 --no-deps |
   python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/trainer
 [ -x "$bin" ] || cargo build --release -p dex-trainer --bin trainer
-mkdir -p "$out"
-member() { # SEED
-  "$bin" imitate --task stack --seeds "$1" --final-eval-episodes 0 --quiet \
-    --out "$out/def-s$1" > "$out/def-s$1.log" 2>&1
-}
-member 1 & member 2; wait
-member 3 & member 4; wait
-member 5 & member 6; wait
-member 7
-teachers=""
-for s in 1 2 3 4 5 6 7; do
-  teachers="$teachers${teachers:+,}$out/def-s$s/seed-$s/policy.dxpl"
-done
-"$bin" imitate --task stack --teacher-policies "$teachers" --rounds 1 --episodes-per-round 400 \
-  --seeds 1 --final-eval-episodes 0 --quiet --out "$out/distil"
-cp "$out/distil/seed-1/policy-1.dxpl" "$out/stack.dxpl"
-sha256sum "$out/stack.dxpl" policies/stack.dxpl
+"$bin" train --task stack --seeds 1 --out "$out" --resume
+sha256sum "$out/clone/seed-1/distil/policy-1.dxpl" policies/stack.dxpl

@@ -379,6 +379,19 @@ fn teacher_pair(cfg: &ImitationConfig) -> Result<Option<ProposalPair>, Imitation
     Ok(Some(pair))
 }
 
+/// Whether `dir` holds a run of `cfg` to resume (false: no settings there yet); a run with other
+/// settings is [`ImitationError::SettingsChanged`]. Compared as settings, not text: a folder
+/// written before a setting existed (it takes its default) still resumes. Reads only.
+pub fn check_run_folder(cfg: &ImitationConfig, dir: &Path) -> Result<bool, ImitationError> {
+    match std::fs::read_to_string(dir.join("settings.json")) {
+        Ok(old) if serde_json::from_str::<ImitationConfig>(&old).ok().as_ref() != Some(cfg) => {
+            Err(ImitationError::SettingsChanged(dir.to_owned()))
+        }
+        Ok(_) => Ok(true),
+        Err(_) => Ok(false),
+    }
+}
+
 /// Runs (or resumes) an imitation run in `dir`.
 pub fn run_imitation(
     scene: &Scene,
@@ -395,15 +408,9 @@ pub fn run_imitation(
     // Held until the run ends: a second run in this folder is refused at once.
     let _lock = crate::pipeline::run_lock::RunLock::acquire(dir)?;
     let settings_path = dir.join("settings.json");
-    let settings = serde_json::to_string_pretty(cfg).unwrap_or_default();
-    // Compared as settings, not text: a folder written before a setting existed (it takes its
-    // default) still resumes.
-    match std::fs::read_to_string(&settings_path) {
-        Ok(old) if serde_json::from_str::<ImitationConfig>(&old).ok().as_ref() != Some(cfg) => {
-            return Err(ImitationError::SettingsChanged(dir.to_owned()));
-        }
-        Ok(_) => {}
-        Err(_) => write_atomic(&settings_path, settings.as_bytes()).map_err(io(&settings_path))?,
+    if !check_run_folder(cfg, dir)? {
+        let settings = serde_json::to_string_pretty(cfg).unwrap_or_default();
+        write_atomic(&settings_path, settings.as_bytes()).map_err(io(&settings_path))?;
     }
     let expert = |task| match (&ensemble, &pair) {
         (Some(e), _) => DemoSource::Ensemble(e.clone()),
@@ -530,7 +537,10 @@ pub fn run_imitation(
     let best_path = dir.join(format!("policy-{best}.dxpl"));
     let out = dir.join("policy.dxpl");
     let bytes = std::fs::read(&best_path).map_err(io(&best_path))?;
-    write_atomic(&out, &bytes).map_err(io(&out))?;
+    // A resumed finished run leaves the file as it is.
+    if std::fs::read(&out).ok().as_deref() != Some(&bytes[..]) {
+        write_atomic(&out, &bytes).map_err(io(&out))?;
+    }
     Ok(ImitationSummary {
         records,
         best_round: best,

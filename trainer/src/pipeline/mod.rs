@@ -6,11 +6,14 @@
 //!   checkpoints (fresh or resumed), select the best checkpoint, export and evaluate it; progress
 //!   as events.
 //! - [`cloning`]: behaviour cloning of demonstration files into a policy file; [`imitation`]:
-//!   cloning plus DAgger rounds with the Markov demonstrator as the oracle (`trainer imitate`).
+//!   cloning plus DAgger rounds with the Markov demonstrator as the oracle (`trainer imitate`);
+//!   [`clone_members`]: the clone stage as an ensemble of imitation runs distilled into one
+//!   network (members, their seeds from the pipeline seed, the distillation's settings).
 //! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
 //! - [`run_plots`]: a run folder's learning curves, drawn by [`plot`] (mean and min-max band over
 //!   seeds, like the paper's figures).
 
+pub mod clone_members;
 pub mod cloning;
 pub mod imitation;
 pub mod plot;

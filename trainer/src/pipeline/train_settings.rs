@@ -11,6 +11,10 @@ use serde::{Deserialize, Serialize};
 use crate::env::{EnvConfig, EnvError, Reward, StartScheme, Task};
 use crate::learn::bc::BcConfig;
 use crate::learn::{LearnError, RunConfig, TargetUpdate};
+use crate::pipeline::clone_members::{
+    self, CloneMember, DEFAULT_DISTIL_EPISODES_PER_ROUND, DEFAULT_DISTIL_ROUNDS, Ensemble,
+    MembersError,
+};
 use crate::pipeline::imitation::{ImitationConfig, ImitationError};
 
 /// Why settings could not be loaded, or are not valid.
@@ -158,6 +162,9 @@ pub enum SettingsError {
     /// The clone stage's imitation settings are out of range.
     #[error("invalid [clone] settings")]
     Clone(#[source] ImitationError),
+    /// The clone stage's members or distillation are refused (for one of the run's seeds).
+    #[error("invalid [clone] members or distillation")]
+    CloneMembers(#[source] MembersError),
 }
 
 /// A key of a settings file that no setting has, by its dotted path (`run.updates_per_step`).
@@ -371,7 +378,9 @@ pub struct TrainSettings {
     pub features: bool,
     /// The clone stage (`[clone]`, `--clone`): before each seed's reinforcement learning, the
     /// imitation learner clones the Markov demonstrator into `OUT/clone/seed-S` and the seed's
-    /// actor starts from that file, as it would from `init_policy` (which must then be unset).
+    /// actor starts from that file, as it would from `init_policy` (which must then be unset);
+    /// with members ([`CloneStage::members`]) the stage is an ensemble of clones distilled into
+    /// one network, whose file the actor starts from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub clone: Option<CloneStage>,
     /// The guard of a run that starts from a policy (`init_policy` or the clone stage): at the
@@ -392,6 +401,13 @@ fn is_zero(n: &u32) -> bool {
 /// The clone stage of a pipeline run: `trainer imitate`'s recipe for the task
 /// ([`ImitationConfig::for_task`]) with the run's seed, actor sizes, task features and evaluation
 /// threads; each field, when set, overrides the recipe's.
+///
+/// Without members that is the stage: one imitation run per seed, in `OUT/clone/seed-S`. With
+/// members (`[[clone.members]]`) it is an ensemble and its distillation
+/// ([`crate::pipeline::clone_members`]): each member entry's runs (the recipe with the entry's
+/// tweaks, at seeds derived from the pipeline seed) in `OUT/clone/seed-S/NAME-sK`, then one
+/// network taught by the mean of their files over `distil_rounds` DAgger rounds in
+/// `OUT/clone/seed-S/distil`, whose last round's file starts the fine-tune.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CloneStage {
@@ -410,6 +426,18 @@ pub struct CloneStage {
     /// Selection starts of the clone.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub select_episodes: Option<u32>,
+    /// With members: DAgger rounds of the distillation (unset:
+    /// [`clone_members::DEFAULT_DISTIL_ROUNDS`]); its last round's file starts the fine-tune.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distil_rounds: Option<u32>,
+    /// With members: policy episodes labelled per distillation round (unset:
+    /// [`clone_members::DEFAULT_DISTIL_EPISODES_PER_ROUND`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distil_episodes_per_round: Option<u32>,
+    /// The ensemble (`[[clone.members]]`; empty: a single clone), in the order their files enter
+    /// the distillation's mean.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub members: Vec<CloneMember>,
 }
 
 impl CloneStage {
@@ -430,6 +458,65 @@ impl CloneStage {
             seed,
             eval_threads: s.eval_threads,
             ..base
+        }
+    }
+
+    /// The ensemble and distillation of seed `seed` of a run with settings `s`, its members' files
+    /// in `OUT/clone/seed-S` (None: no members, a single clone).
+    pub fn ensemble(&self, s: &TrainSettings, seed: u64) -> Result<Option<Ensemble>, MembersError> {
+        if self.members.is_empty() {
+            clone_members::check_members(
+                &self.members,
+                self.distil_rounds,
+                self.distil_episodes_per_round,
+            )?;
+            return Ok(None);
+        }
+        let dir = s.out.join("clone").join(format!("seed-{seed}"));
+        Ensemble::new(
+            &self.imitation(s, seed),
+            &self.members,
+            self.distil_rounds,
+            self.distil_episodes_per_round,
+            seed,
+            &dir,
+        )
+        .map(Some)
+    }
+
+    /// The clone stage of the task's default pipeline ([`PresetArg::Finetune`]): the shipped
+    /// recipe of its policy file. Grasp: members of the default recipe at seeds 0-3, with close
+    /// bursts 0.02 at seeds 0-1 and with the teacher that tucks first at seeds 0-1, distilled
+    /// over one round (`experiments/grasp-distil.sh`, policies/grasp.dxpl); Stack: Stack's recipe
+    /// at seeds 1-7, distilled over one round (`experiments/stack-distil.sh`,
+    /// policies/stack.dxpl); both with 400 episodes a round at pipeline seed 1. The other tasks:
+    /// one clone (StackInHand's file is its clone fine-tuned).
+    pub fn for_task(task: TaskArg) -> CloneStage {
+        let member = |name: &str, seeds: &[u64]| CloneMember {
+            name: name.to_owned(),
+            seeds: seeds.to_vec(),
+            ..CloneMember::default()
+        };
+        let members = match task {
+            TaskArg::Grasp => vec![
+                member("default", &[0, 1, 2, 3]),
+                CloneMember {
+                    close_bursts: Some(0.02),
+                    ..member("close-bursts", &[0, 1])
+                },
+                CloneMember {
+                    tuck_first: true,
+                    ..member("tuck-first", &[0, 1])
+                },
+            ],
+            TaskArg::Stack => vec![member("default", &[1, 2, 3, 4, 5, 6, 7])],
+            TaskArg::Reach | TaskArg::StackInHand => return CloneStage::default(),
+        };
+        CloneStage {
+            members,
+            distil_rounds: Some(DEFAULT_DISTIL_ROUNDS),
+            distil_episodes_per_round: Some(DEFAULT_DISTIL_EPISODES_PER_ROUND),
+            ..CloneStage::default()
         }
     }
 }
@@ -454,8 +541,10 @@ pub enum PresetArg {
     /// weight 5 and TD3+BC's Q normalisation 2.5, gamma 0.98, the clone's 256-256 actor
     /// (`experiments/finetune/*-features-clone-bc5.toml`; docs/experiments.md, session 14:
     /// StackInHand 989 -> 995 of 1000, Stack 974 -> 981, Grasp 989 -> 978), guarded against the
-    /// clone on [`FINETUNE_GUARD_EPISODES`] selection starts. The default of `trainer train --task
-    /// grasp|stack-in-hand|stack` without a settings file ([`TaskArg::default_pipeline`]).
+    /// clone on [`FINETUNE_GUARD_EPISODES`] selection starts. On Grasp and Stack the clone stage
+    /// is the shipped file's ensemble and distillation ([`CloneStage::for_task`]; a run with its
+    /// own `[clone]` keeps that). The default of `trainer train --task grasp|stack-in-hand|stack`
+    /// without a settings file ([`TaskArg::default_pipeline`]).
     Finetune,
 }
 
@@ -498,11 +587,16 @@ pub struct TaskDefault {
     pub transitions: u64,
     /// The checkpoint interval, where it is not the settings' default.
     pub checkpoint_every: Option<u64>,
+    /// The seed when none is given: 1 on Grasp and Stack, whose clone stages' member seeds are
+    /// written for pipeline seed 1 (the shipped files' seed; seed 0 would make members' seeds
+    /// negative, [`crate::pipeline::clone_members`]), else 0.
+    pub seed: u64,
 }
 
 impl TaskArg {
     /// The task's default pipeline: on the manipulation tasks the clone stage and the fine-tune
-    /// that keeps it ([`PresetArg::Finetune`], guarded against its clone); on Reach, whose
+    /// that keeps it ([`PresetArg::Finetune`], guarded against its clone; on Grasp and Stack the
+    /// clone stage is the shipped file's ensemble and distillation, at seed 1); on Reach, whose
     /// demonstrations are solved by a few thousand transitions, the learner from demonstrations.
     pub fn default_pipeline(self) -> TaskDefault {
         match self {
@@ -510,11 +604,19 @@ impl TaskArg {
                 preset: PresetArg::Demos,
                 transitions: REACH_DEMOS_TRANSITIONS,
                 checkpoint_every: Some(REACH_DEMOS_CHECKPOINT_EVERY),
+                seed: 0,
             },
-            TaskArg::Grasp | TaskArg::StackInHand | TaskArg::Stack => TaskDefault {
+            TaskArg::StackInHand => TaskDefault {
                 preset: PresetArg::Finetune,
                 transitions: FINETUNE_TRANSITIONS,
                 checkpoint_every: None,
+                seed: 0,
+            },
+            TaskArg::Grasp | TaskArg::Stack => TaskDefault {
+                preset: PresetArg::Finetune,
+                transitions: FINETUNE_TRANSITIONS,
+                checkpoint_every: None,
+                seed: 1,
             },
         }
     }
@@ -535,6 +637,7 @@ impl TrainSettings {
         let d = task.default_pipeline();
         d.preset.apply(&mut s);
         s.transitions = d.transitions;
+        s.seeds = vec![d.seed];
         if let Some(c) = d.checkpoint_every {
             s.checkpoint_every = c;
         }
@@ -562,7 +665,8 @@ impl PresetArg {
                 if s.demo_files.is_empty() && s.record_demos == 0 {
                     s.record_demos = 200;
                 }
-                s.clone.get_or_insert_with(CloneStage::default);
+                let task = s.task;
+                s.clone.get_or_insert_with(|| CloneStage::for_task(task));
                 s.features = true;
                 s.run.demos = crate::learn::DemoDataConfig {
                     fraction: 0.25,
@@ -818,6 +922,11 @@ impl TrainSettings {
                 .imitation(self, 0)
                 .validate()
                 .map_err(SettingsError::Clone)?;
+            for &seed in &self.seeds {
+                stage
+                    .ensemble(self, seed)
+                    .map_err(SettingsError::CloneMembers)?;
+            }
         }
         Ok(())
     }
@@ -921,5 +1030,179 @@ mod tests {
         let text = s.to_toml().unwrap();
         let back: TrainSettings = toml::from_str(&text).unwrap();
         assert_eq!(back, s);
+        for task in [TaskArg::Grasp, TaskArg::Stack, TaskArg::StackInHand] {
+            let s = TrainSettings::for_task(task);
+            let text = s.to_toml().unwrap();
+            let back: TrainSettings = toml::from_str(&text).unwrap();
+            assert_eq!(back, s, "{text}");
+        }
+    }
+
+    /// The imitation seeds of the member runs of `task`'s default pipeline at pipeline seed `seed`,
+    /// with their folders, in the order they enter the distillation's mean.
+    fn member_seeds(task: TaskArg, seed: u64) -> Result<Vec<(String, u64)>, SettingsError> {
+        let mut s = TrainSettings::for_task(task);
+        s.seeds = vec![seed];
+        s.validate()?;
+        let e = s
+            .clone
+            .as_ref()
+            .unwrap()
+            .ensemble(&s, seed)
+            .unwrap()
+            .unwrap();
+        assert_eq!(e.distil.seed, seed);
+        Ok(e.members
+            .iter()
+            .map(|m| (m.folder.clone(), m.config.seed))
+            .collect())
+    }
+
+    #[test]
+    fn the_default_members_at_seed_one_are_the_shipped_recipes() {
+        // experiments/stack-distil.sh: Stack's recipe at seeds 1-7, distilled at seed 1 over one
+        // round of 400 episodes.
+        let stack = member_seeds(TaskArg::Stack, 1).unwrap();
+        let seeds: Vec<u64> = stack.iter().map(|m| m.1).collect();
+        assert_eq!(seeds, (1..=7).collect::<Vec<_>>());
+        let s = TrainSettings::for_task(TaskArg::Stack);
+        assert_eq!(s.seeds, vec![1]);
+        let e = s.clone.as_ref().unwrap().ensemble(&s, 1).unwrap().unwrap();
+        assert_eq!((e.distil.rounds, e.distil.episodes_per_round), (1, 400));
+        let recipe = ImitationConfig::for_task(Task::Stack);
+        for m in &e.members {
+            let c = &m.config;
+            assert_eq!(
+                (
+                    c.dart_episodes,
+                    c.in_hand_episodes,
+                    c.bc.steps,
+                    &c.bc.hidden
+                ),
+                (recipe.dart_episodes, 1600, 60_000, &vec![256, 256])
+            );
+            assert!(c.bc.features && !c.tuck_first && c.close_bursts == 0.0);
+        }
+        assert_eq!(
+            e.distil.teacher_policies[0],
+            PathBuf::from("runs/stack/clone/seed-1/default-s1/policy.dxpl")
+        );
+        // experiments/grasp-distil.sh: the default recipe's seeds 0-3, close bursts 0.02 at 0-1,
+        // the teacher that tucks first at 0-1, in this order; distilled at seed 1 (round 1).
+        let grasp = member_seeds(TaskArg::Grasp, 1).unwrap();
+        let want: Vec<(String, u64)> = [
+            ("default-s0", 0),
+            ("default-s1", 1),
+            ("default-s2", 2),
+            ("default-s3", 3),
+            ("close-bursts-s0", 0),
+            ("close-bursts-s1", 1),
+            ("tuck-first-s0", 0),
+            ("tuck-first-s1", 1),
+        ]
+        .iter()
+        .map(|&(f, k)| (f.to_owned(), k))
+        .collect();
+        assert_eq!(grasp, want);
+        let s = TrainSettings::for_task(TaskArg::Grasp);
+        let e = s.clone.as_ref().unwrap().ensemble(&s, 1).unwrap().unwrap();
+        assert_eq!((e.distil.rounds, e.distil.episodes_per_round), (1, 400));
+        let tweaks: Vec<(f32, bool)> = e
+            .members
+            .iter()
+            .map(|m| (m.config.close_bursts, m.config.tuck_first))
+            .collect();
+        assert_eq!(tweaks[3], (0.0, false));
+        assert_eq!(tweaks[5], (0.02, false));
+        assert_eq!(tweaks[6], (0.0, true));
+        // Other pipeline seeds: members of their own, none shared with seed 1's.
+        let two = member_seeds(TaskArg::Stack, 2).unwrap();
+        assert_eq!(two[0].1, 8);
+        let two = member_seeds(TaskArg::Grasp, 2).unwrap();
+        assert!(two.iter().all(|m| !grasp.contains(m)), "{two:?}");
+        // Seed 0 would run negative member seeds.
+        for task in [TaskArg::Grasp, TaskArg::Stack] {
+            assert!(matches!(
+                member_seeds(task, 0),
+                Err(SettingsError::CloneMembers(
+                    MembersError::NegativeSeed { .. }
+                ))
+            ));
+        }
+    }
+
+    #[test]
+    fn members_in_a_settings_file_and_their_refusals() {
+        let dir = std::env::temp_dir().join(format!("dex-cfg-members-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("members.toml");
+        let base = "task = \"grasp\"\nseeds = [1]\nfeatures = true\n[clone]\nbc_steps = 100\n\
+                    distil_rounds = 2\n[[clone.members]]\nname = \"a\"\nseeds = [0, 1]\n\
+                    [[clone.members]]\nname = \"b\"\nseeds = [0]\nclose_bursts = 0.02\n\
+                    tuck_first = true\n";
+        let load_with = |text: &str| {
+            std::fs::write(&path, text).unwrap();
+            load(Some(&path))
+        };
+        let s = load_with(base).unwrap();
+        let stage = s.clone.as_ref().unwrap();
+        assert_eq!(stage.members.len(), 2);
+        assert_eq!(stage.members[1].close_bursts, Some(0.02));
+        assert!(stage.members[1].tuck_first && !stage.members[0].tuck_first);
+        s.validate().unwrap();
+        let e = stage.ensemble(&s, 1).unwrap().unwrap();
+        assert_eq!(e.members.len(), 3);
+        assert_eq!(e.members[2].config.bc.steps, 100, "the stage's overrides");
+        assert_eq!((e.distil.rounds, e.distil.episodes_per_round), (2, 400));
+        // Written into the run folder and read back.
+        let back: TrainSettings = toml::from_str(&s.to_toml().unwrap()).unwrap();
+        assert_eq!(back, s);
+        // A typo inside a member entry is an error.
+        assert!(load_with(&base.replace("tuck_first", "tuck_frist")).is_err());
+        let refused = |text: &str| load_with(text).unwrap().validate().unwrap_err();
+        let members = |e: SettingsError| match e {
+            SettingsError::CloneMembers(m) => m,
+            other => panic!("{other}"),
+        };
+        assert!(matches!(
+            members(refused(&base.replace("seeds = [0]", "seeds = []"))),
+            MembersError::NoSeeds { .. }
+        ));
+        assert!(matches!(
+            members(refused(
+                &base.replace("distil_rounds = 2", "distil_rounds = 0")
+            )),
+            MembersError::NoDistilRounds
+        ));
+        assert!(matches!(
+            members(refused(
+                &base.replace("distil_rounds = 2", "distil_episodes_per_round = 0")
+            )),
+            MembersError::NoDistilEpisodes
+        ));
+        assert!(matches!(
+            members(refused(&base.replace("seeds = [1]", "seeds = [1, 0]"))),
+            MembersError::NegativeSeed {
+                pipeline_seed: 0,
+                ..
+            }
+        ));
+        assert!(matches!(
+            members(refused(&base.replace("name = \"b\"", "name = \"a\""))),
+            MembersError::Duplicate { .. }
+        ));
+        // Distillation settings without members.
+        let single = "task = \"grasp\"\nfeatures = true\n[clone]\ndistil_rounds = 1\n";
+        assert!(matches!(
+            members(refused(single)),
+            MembersError::DistilWithoutMembers
+        ));
+        // Members and an init_policy: two starting points.
+        let init = base.replace(
+            "features = true\n",
+            "features = true\ninit_policy = \"p.dxpl\"\n",
+        );
+        assert!(matches!(refused(&init), SettingsError::CloneAndInitPolicy));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

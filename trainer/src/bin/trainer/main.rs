@@ -119,7 +119,8 @@ struct TrainArgs {
     /// Worker threads (the paper's ADPG-R workers; 1 = DPG-R).
     #[arg(short = 'W', long)]
     workers: Option<usize>,
-    /// Seeds, comma-separated (one run each).
+    /// Seeds, comma-separated (one run each; default 0, 1 for the default pipelines of Grasp and
+    /// Stack, whose clone stage's member seeds are written for seed 1).
     #[arg(long, value_delimiter = ',')]
     seeds: Option<Vec<u64>>,
     /// Transition budget per seed (all workers together).
@@ -188,9 +189,10 @@ struct TrainArgs {
     #[arg(long, requires = "distributed")]
     respawn_after: Option<f64>,
     /// Start from a named configuration (`paper`: plain DDPG, none of the components below;
-    /// `demos`: the learner from demonstrations, Reach's default; `finetune`: the clone stage and
-    /// the fine-tune that keeps the clone, the default of Grasp, StackInHand and Stack without
-    /// --config and without component flags); conflicts with the component flags.
+    /// `demos`: the learner from demonstrations, Reach's default; `finetune`: the clone stage (on
+    /// Grasp and Stack an ensemble of clones distilled into one network) and the fine-tune that
+    /// keeps the clone, the default of Grasp, StackInHand and Stack without --config and without
+    /// component flags); conflicts with the component flags.
     #[arg(long, value_enum, conflicts_with_all = [
         "demos", "record_demos", "demo_fraction", "bc_weight", "no_q_filter", "td3", "n_step",
         "noise_correlation", "finger_noise_scale", "action_l2", "pretrain_updates",

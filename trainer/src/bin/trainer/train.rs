@@ -114,6 +114,10 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
             if a.transitions.is_none() && a.config.is_none() {
                 s.transitions = train_settings::FINETUNE_TRANSITIONS;
             }
+            // The seed the task's clone stage is written for (1 where it has members).
+            if a.seeds.is_none() && a.config.is_none() {
+                s.seeds = vec![s.task.default_pipeline().seed];
+            }
         }
         Some(p) => p.apply(s),
         // A task with no settings file and no learner flag gets its default pipeline, at the
@@ -123,6 +127,9 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
             d.preset.apply(s);
             if a.transitions.is_none() {
                 s.transitions = d.transitions;
+            }
+            if a.seeds.is_none() {
+                s.seeds = vec![d.seed];
             }
             if let Some(c) = d.checkpoint_every
                 && a.checkpoint_every.is_none()
@@ -307,6 +314,41 @@ impl Terminal {
                 "seed {seed}: clone stage (the imitation learner) in {}",
                 dir.display()
             ),
+            TrainEvent::EnsembleStarted {
+                seed,
+                dir,
+                members,
+                parallel,
+            } => println!(
+                "seed {seed}: {members} member clones, {parallel} at a time, in {}, then one \
+                 network distilled from their mean",
+                dir.display()
+            ),
+            TrainEvent::MemberStarted {
+                seed,
+                member,
+                member_seed,
+            } => println!("seed {seed}: member {member} (imitation seed {member_seed}) started"),
+            TrainEvent::Member {
+                seed,
+                member,
+                event,
+            } => show_member(seed, member, event),
+            TrainEvent::MemberDone {
+                seed,
+                member,
+                policy,
+            } => println!("seed {seed}: member {member} done: {}", policy.display()),
+            TrainEvent::DistilStarted {
+                seed,
+                dir,
+                teachers,
+                rounds,
+            } => println!(
+                "seed {seed}: distilling the mean of {teachers} members into one network \
+                 ({rounds} DAgger round(s)) in {}",
+                dir.display()
+            ),
             TrainEvent::Clone { seed, event } => self.show_clone(seed, event),
             TrainEvent::Cloned { seed, policy } => {
                 if let Some(pb) = self.bar.take() {
@@ -474,6 +516,27 @@ impl Terminal {
     }
 }
 
+/// A member clone's progress, one line per milestone (members run side by side, so no bars).
+fn show_member(seed: u64, member: &str, event: ImitationEvent<'_>) {
+    match event {
+        ImitationEvent::Recording { round, episodes } => {
+            println!("seed {seed}: member {member} round {round}: recording {episodes} episodes");
+        }
+        ImitationEvent::Cloning { round, steps } => {
+            println!("seed {seed}: member {member} round {round}: {steps} cloning steps");
+        }
+        ImitationEvent::CloneStep(..) => {}
+        ImitationEvent::Round(r) => println!(
+            "seed {seed}: member {member} round {}: {} env steps, {:.0} s: selection success \
+             {:.1}%",
+            r.eval_index,
+            r.transitions,
+            r.wall_s,
+            100.0 * r.success_rate
+        ),
+    }
+}
+
 /// One line: successes, rate, 95% interval and mean return.
 pub fn describe(e: &PolicyEval) -> String {
     format!("success {e}")
@@ -622,6 +685,11 @@ mod tests {
                 (FINETUNE_TRANSITIONS, FINETUNE_GUARD_EPISODES, 200)
             );
             assert_eq!(s.run.ddpg.gamma, 0.98);
+            // Grasp and Stack: the shipped file's ensemble and distillation, at the seed its
+            // members are written for; StackInHand: one clone, seed 0.
+            let members = !s.clone.as_ref().unwrap().members.is_empty();
+            assert_eq!(members, task != "stack-in-hand", "{task}");
+            assert_eq!(s.seeds, vec![u64::from(members)], "{task}");
         }
         // Budget, seeds and the guard's starts still apply; any learner flag starts from the
         // paper's DDPG instead.
@@ -756,7 +824,16 @@ mod tests {
     #[test]
     fn the_finetune_preset_is_the_clone_stage_and_rl_that_keeps_the_clone() {
         let s = settings(&["--task", "stack", "--preset", "finetune"]);
+        assert_eq!(
+            s.clone,
+            Some(train_settings::CloneStage::for_task(TaskArg::Stack))
+        );
+        assert_eq!(s.seeds, vec![1]);
+        let s = settings(&["--task", "stack-in-hand", "--preset", "finetune"]);
         assert_eq!(s.clone, Some(train_settings::CloneStage::default()));
+        let s = settings(&["--task", "stack", "--preset", "finetune", "--seeds", "2,3"]);
+        assert_eq!(s.seeds, vec![2, 3]);
+        let s = settings(&["--task", "stack", "--preset", "finetune"]);
         assert!(s.features && s.init_policy.is_none());
         assert_eq!(s.transitions, train_settings::FINETUNE_TRANSITIONS);
         assert_eq!(
@@ -781,8 +858,24 @@ mod tests {
             "1000",
         ]);
         assert_eq!(s.transitions, 1000);
-        // --clone alone adds the stage to the run's own learner.
+        // --clone alone adds the single-clone stage to the run's own learner.
         let s = settings(&["--task", "grasp", "--clone", "--hidden", "64,64"]);
         assert!(s.clone.is_some() && s.run.demos.bc_weight != 5.0);
+        assert!(s.clone.as_ref().unwrap().members.is_empty());
+        // Seed 0 would give Grasp's members negative seeds: refused before any work.
+        let cli =
+            crate::Cli::try_parse_from(["trainer", "train", "--task", "grasp", "--seeds", "0,1"])
+                .expect("flags parse");
+        let crate::Command::Train(a) = cli.command else {
+            panic!("not train")
+        };
+        let mut s = TrainSettings::default();
+        apply_flags(&mut s, &a);
+        assert!(matches!(
+            s.validate(),
+            Err(train_settings::SettingsError::CloneMembers(
+                dex_trainer::pipeline::clone_members::MembersError::NegativeSeed { .. }
+            ))
+        ));
     }
 }

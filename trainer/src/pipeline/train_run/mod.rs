@@ -8,7 +8,9 @@
 //!
 //! A run folder `OUT` holds `settings.toml`, `.lock` and per seed `seed-S/`: `checkpoint.bin`,
 //! `settings.toml`, `eval.jsonl`, `best.json` + `best_actor.bin` (the selected checkpoint),
-//! `demos.dxdm` (recorded demonstrations, when asked for), `policy.dxpl` and `final_eval.json`.
+//! `demos.dxdm` (recorded demonstrations, when asked for), `policy.dxpl` and `final_eval.json`;
+//! with a clone stage also `clone/seed-S/`: the clone's imitation run folder, or with members one
+//! folder per member run (`NAME-sK`) and the distillation's (`distil`).
 
 use std::borrow::Cow;
 use std::fs::OpenOptions;
@@ -37,6 +39,7 @@ use crate::pipeline::train_settings::{SettingsError, TrainSettings};
 mod demonstrations;
 mod distributed;
 mod guard;
+mod members;
 mod run_log;
 mod screen;
 mod seed_export;
@@ -303,14 +306,66 @@ pub enum TrainEvent<'a> {
         /// The stage's run folder (`OUT/clone/seed-S`).
         dir: &'a Path,
     },
-    /// Progress of a seed's clone stage.
+    /// A seed's clone stage is an ensemble ([`crate::pipeline::clone_members`]): `members`
+    /// imitation runs, `parallel` at a time, in folders of `dir`, then the distillation.
+    EnsembleStarted {
+        /// The seed.
+        seed: u64,
+        /// The stage's folder (`OUT/clone/seed-S`).
+        dir: &'a Path,
+        /// Member runs.
+        members: usize,
+        /// Member runs at a time.
+        parallel: usize,
+    },
+    /// A member run starts (or resumes) in the stage's folder `member` (`NAME-sK`).
+    MemberStarted {
+        /// The pipeline seed.
+        seed: u64,
+        /// The member run's folder name.
+        member: &'a str,
+        /// Its seed.
+        member_seed: u64,
+    },
+    /// Progress of a member run (the events of members running side by side interleave).
+    Member {
+        /// The pipeline seed.
+        seed: u64,
+        /// The member run's folder name.
+        member: &'a str,
+        /// What its imitation learner reports.
+        event: ImitationEvent<'a>,
+    },
+    /// A member run is done; its file is one of the distillation's teachers.
+    MemberDone {
+        /// The pipeline seed.
+        seed: u64,
+        /// The member run's folder name.
+        member: &'a str,
+        /// Its policy file.
+        policy: &'a Path,
+    },
+    /// The members are done: the distillation starts (or resumes) in `dir`; its progress
+    /// arrives as [`TrainEvent::Clone`], its last round's file as [`TrainEvent::Cloned`].
+    DistilStarted {
+        /// The seed.
+        seed: u64,
+        /// Its folder (`OUT/clone/seed-S/distil`).
+        dir: &'a Path,
+        /// The members' files whose mean action teaches it.
+        teachers: usize,
+        /// Its DAgger rounds.
+        rounds: u32,
+    },
+    /// Progress of a seed's clone stage (with members: of the distillation).
     Clone {
         /// The seed.
         seed: u64,
         /// What the imitation learner reports.
         event: ImitationEvent<'a>,
     },
-    /// A seed's clone is made; its actor starts from `policy`.
+    /// A seed's clone (with members: the distilled network) is made; its actor starts from
+    /// `policy`.
     Cloned {
         /// The seed.
         seed: u64,
@@ -525,17 +580,21 @@ impl TrainPlan {
     /// The plan of seed `seed`: this one, or with a clone stage the same settings with the
     /// seed's clone as `init_policy`, made first (or found made: the imitation learner resumes its
     /// folder) in `OUT/clone/seed-S`; with `start.failed_starts`, training also revisits the
-    /// starts its starting policy failed on the screening starts (`screen`).
+    /// starts its starting policy failed on the screening starts (`screen`). None: `stop` was
+    /// raised during the clone stage's members.
     fn for_seed(
         &self,
         seed: u64,
         scene: &Scene,
+        stop: &AtomicBool,
         on_event: &mut dyn FnMut(TrainEvent<'_>),
-    ) -> Result<Cow<'_, TrainPlan>, TrainRunError> {
-        let plan = self.with_clone(seed, scene, on_event)?;
+    ) -> Result<Option<Cow<'_, TrainPlan>>, TrainRunError> {
+        let Some(plan) = self.with_clone(seed, scene, stop, on_event)? else {
+            return Ok(None);
+        };
         let s = &plan.settings;
         let Some(init) = s.init_policy.as_ref().filter(|_| s.start.failed_starts > 0) else {
-            return Ok(plan);
+            return Ok(Some(plan));
         };
         let dir = s.out.join(format!("seed-{seed}"));
         let screening = screen::screen(s, (seed, init), &dir, scene, on_event)?;
@@ -550,37 +609,55 @@ impl TrainPlan {
             .starts
             .with_revisits(screening.revisits(probability))
             .map_err(TrainRunError::StartStates)?;
-        Ok(Cow::Owned(plan))
+        Ok(Some(Cow::Owned(plan)))
     }
 
-    /// [`TrainPlan::for_seed`]'s clone stage.
+    /// [`TrainPlan::for_seed`]'s clone stage: one imitation run, or with members the ensemble
+    /// and its distillation (`members`).
     fn with_clone(
         &self,
         seed: u64,
         scene: &Scene,
+        stop: &AtomicBool,
         on_event: &mut dyn FnMut(TrainEvent<'_>),
-    ) -> Result<Cow<'_, TrainPlan>, TrainRunError> {
+    ) -> Result<Option<Cow<'_, TrainPlan>>, TrainRunError> {
         let Some(stage) = &self.settings.clone else {
-            return Ok(Cow::Borrowed(self));
+            return Ok(Some(Cow::Borrowed(self)));
         };
-        let cfg = stage.imitation(&self.settings, seed);
         let dir = self.settings.out.join("clone").join(format!("seed-{seed}"));
         on_event(TrainEvent::CloneStarted { seed, dir: &dir });
-        let summary = run_imitation(scene, &cfg, &dir, &mut |event| {
-            on_event(TrainEvent::Clone { seed, event });
-        })
-        .map_err(|source| TrainRunError::Clone {
-            dir: dir.clone(),
-            source,
-        })?;
+        let ensemble = stage
+            .ensemble(&self.settings, seed)
+            .map_err(SettingsError::CloneMembers)?;
+        let policy = match ensemble {
+            Some(ensemble) => {
+                let made =
+                    members::run_ensemble(&ensemble, &self.settings, seed, scene, stop, on_event)?;
+                let Some(policy) = made else {
+                    return Ok(None);
+                };
+                policy
+            }
+            None => {
+                let cfg = stage.imitation(&self.settings, seed);
+                run_imitation(scene, &cfg, &dir, &mut |event| {
+                    on_event(TrainEvent::Clone { seed, event });
+                })
+                .map_err(|source| TrainRunError::Clone {
+                    dir: dir.clone(),
+                    source,
+                })?
+                .policy
+            }
+        };
         on_event(TrainEvent::Cloned {
             seed,
-            policy: &summary.policy,
+            policy: &policy,
         });
         let mut settings = self.settings.clone();
         settings.clone = None;
-        settings.init_policy = Some(summary.policy);
-        TrainPlan::new(settings).map(Cow::Owned)
+        settings.init_policy = Some(policy);
+        TrainPlan::new(settings).map(|p| Some(Cow::Owned(p)))
     }
 
     /// Trains every seed into the run folder until done or `stop` is raised, holding each seed
@@ -603,7 +680,10 @@ impl TrainPlan {
         write_file(&s.out.join("settings.toml"), s.to_toml()?.as_bytes())?;
         on_event(TrainEvent::Started { settings: s });
         for &seed in &s.seeds {
-            let plan = self.for_seed(seed, scene, on_event)?;
+            let Some(plan) = self.for_seed(seed, scene, stop, on_event)? else {
+                on_event(TrainEvent::Stopped { seed });
+                return Ok(false);
+            };
             if !train_seed(&plan, seed, scene, resume, stop, on_event, None)? {
                 return Ok(false);
             }
