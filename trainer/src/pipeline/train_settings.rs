@@ -385,9 +385,10 @@ pub struct TrainSettings {
     pub clone: Option<CloneStage>,
     /// The guard of a run that starts from a policy (`init_policy` or the clone stage): at the
     /// export, the selected policy and the starting one are evaluated on this many selection
-    /// starts (the same starts for both) and the starting policy is shipped when it solves more of
-    /// them, so the reinforcement-learning stage never ships a file measurably worse than the one
-    /// it was given (`--guard-episodes`; 0: off, the selected policy is shipped).
+    /// starts (the same starts for both) and the selected policy is shipped only when it solves
+    /// more of them with a McNemar p below 0.01; otherwise (a tie included) the starting policy's
+    /// file is, so the reinforcement-learning stage ships only a file measurably better than the
+    /// one it was given (`--guard-episodes`; 0: off, the selected policy is shipped).
     #[serde(skip_serializing_if = "is_zero")]
     pub guard_episodes: u32,
     /// The learner.
