@@ -4,44 +4,24 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::sync::atomic::AtomicBool;
-
 use dex_trainer::cell::critic_ranking::{CriticRankingError, RankedRun, RankingSettings};
 use dex_trainer::env::seeds::episode_seed;
 use dex_trainer::env::{JacoEnv, Task};
 use dex_trainer::learn::Trainer;
-use dex_trainer::pipeline::train_run::TrainPlan;
-use dex_trainer::pipeline::train_settings::{TaskArg, TrainSettings};
+use dex_trainer::pipeline::train_settings::TrainSettings;
 
 mod common;
-use common::{REACH_FIXTURE, fresh_path, reach_fixture_hidden, scene, text, trainer};
+use common::{fresh_path, reach_fixture_run, scene, text, trainer};
 
-/// A short Reach fine-tune of the fixture (twin critics when `twin`), trained to the end; its
-/// seed folder.
+/// A short Reach fine-tune of the fixture (twin critics when `twin`, the observations normalised
+/// when `obs_norm`); its seed folder.
 fn reach_run(name: &str, twin: bool, obs_norm: bool) -> std::path::PathBuf {
-    let out = fresh_path("rank", name);
-    let mut s = TrainSettings {
-        task: TaskArg::Reach,
-        out: out.clone(),
-        transitions: 300,
-        checkpoint_every: 300,
-        final_eval_episodes: 1,
-        select_best_episodes: 0,
-        init_policy: Some(REACH_FIXTURE.into()),
-        ..TrainSettings::default()
-    };
-    s.run.ddpg.actor_hidden = reach_fixture_hidden();
-    s.run.obs_norm.enabled = obs_norm;
-    s.run.obs_norm.frozen_from_init = obs_norm;
-    s.run.updates_per_step = 2;
-    s.run.learning_starts = 100;
-    s.run.td3.twin_critics = twin;
-    let done = TrainPlan::new(s)
-        .unwrap()
-        .train(scene(), false, &AtomicBool::new(false), &mut |_| {})
-        .unwrap();
-    assert!(done);
-    out.join("seed-0")
+    reach_fixture_run(&fresh_path("rank", name), 300, |s| {
+        s.run.obs_norm.enabled = obs_norm;
+        s.run.obs_norm.frozen_from_init = obs_norm;
+        s.run.updates_per_step = 2;
+        s.run.td3.twin_critics = twin;
+    })
 }
 
 #[test]

@@ -5,8 +5,6 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::sync::atomic::AtomicBool;
-
 use dex_trainer::cell::policy_demo::{DemoSource, PolicyDemonstration};
 use dex_trainer::cell::proposal_pair::{ProposalPair, ProposalPairError};
 use dex_trainer::cell::run_folder::RunFolderError;
@@ -14,37 +12,18 @@ use dex_trainer::env::Task;
 use dex_trainer::files::demos::{Keep, RecordMode, RecordSettings, record_with};
 use dex_trainer::learn::Trainer;
 use dex_trainer::pipeline::imitation::{ImitationConfig, run_imitation};
-use dex_trainer::pipeline::train_run::TrainPlan;
-use dex_trainer::pipeline::train_settings::{TaskArg, TrainSettings};
+use dex_trainer::pipeline::train_settings::TaskArg;
 
 mod common;
-use common::{REACH_FIXTURE, fresh_path, reach_fixture_hidden, scene, text, trainer};
+use common::{REACH_FIXTURE, fresh_path, reach_fixture_run, scene, text, trainer};
 
 /// A short Reach fine-tune of the fixture, with or without the proposal, trained to the end;
 /// its seed folder.
 fn reach_run(name: &str, ibrl: bool) -> std::path::PathBuf {
-    let out = fresh_path("pair", name);
-    let mut s = TrainSettings {
-        task: TaskArg::Reach,
-        out: out.clone(),
-        transitions: 400,
-        checkpoint_every: 400,
-        final_eval_episodes: 2,
-        select_best_episodes: 0,
-        init_policy: Some(REACH_FIXTURE.into()),
-        ..TrainSettings::default()
-    };
-    s.run.ddpg.actor_hidden = reach_fixture_hidden();
-    s.run.obs_norm.enabled = false;
-    s.run.updates_per_step = 4;
-    s.run.learning_starts = 100;
-    s.run.ibrl = ibrl;
-    let done = TrainPlan::new(s)
-        .unwrap()
-        .train(scene(), false, &AtomicBool::new(false), &mut |_| {})
-        .unwrap();
-    assert!(done);
-    out.join("seed-0")
+    reach_fixture_run(&fresh_path("pair", name), 400, |s| {
+        s.run.updates_per_step = 4;
+        s.run.ibrl = ibrl;
+    })
 }
 
 #[test]

@@ -60,3 +60,40 @@ pub fn reach_fixture_hidden() -> Vec<usize> {
     let outs: Vec<usize> = view.layers().map(|l| l.outputs).collect();
     outs[..outs.len() - 1].to_vec()
 }
+
+/// A short Reach fine-tune of [`REACH_FIXTURE`] into `out`: `transitions` transitions, one
+/// checkpoint at the end, no checkpoint selection, one final episode, learning from 100
+/// transitions on, the fixture's actor sizes, raw observations; `configure` then changes what the
+/// test needs. Trained to the end; returns its seed folder (`out/seed-0`).
+pub fn reach_fixture_run(
+    out: &std::path::Path,
+    transitions: u64,
+    configure: impl FnOnce(&mut dex_trainer::pipeline::train_settings::TrainSettings),
+) -> PathBuf {
+    use dex_trainer::pipeline::train_settings::{TaskArg, TrainSettings};
+    let mut s = TrainSettings {
+        task: TaskArg::Reach,
+        out: out.to_path_buf(),
+        transitions,
+        checkpoint_every: transitions,
+        final_eval_episodes: 1,
+        select_best_episodes: 0,
+        init_policy: Some(REACH_FIXTURE.into()),
+        ..TrainSettings::default()
+    };
+    s.run.ddpg.actor_hidden = reach_fixture_hidden();
+    s.run.obs_norm.enabled = false;
+    s.run.learning_starts = 100;
+    configure(&mut s);
+    let done = dex_trainer::pipeline::train_run::TrainPlan::new(s)
+        .expect("valid settings")
+        .train(
+            scene(),
+            false,
+            &std::sync::atomic::AtomicBool::new(false),
+            &mut |_| {},
+        )
+        .expect("the run trains");
+    assert!(done);
+    out.join("seed-0")
+}
