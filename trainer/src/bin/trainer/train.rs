@@ -654,7 +654,8 @@ mod tests {
     use super::*;
     use clap::Parser;
 
-    fn settings(args: &[&str]) -> TrainSettings {
+    /// `trainer train ARGS` as settings, not yet validated.
+    fn flagged(args: &[&str]) -> TrainSettings {
         let cli = crate::Cli::try_parse_from(["trainer", "train"].iter().chain(args).copied())
             .expect("flags parse");
         let crate::Command::Train(a) = cli.command else {
@@ -662,6 +663,12 @@ mod tests {
         };
         let mut s = TrainSettings::default();
         apply_flags(&mut s, &a);
+        s
+    }
+
+    /// `trainer train ARGS` as validated settings.
+    fn settings(args: &[&str]) -> TrainSettings {
+        let s = flagged(args);
         s.validate().expect("valid");
         s
     }
@@ -751,22 +758,14 @@ mod tests {
         let s = settings(&["--preset", "demos", "--lr", "2e-4"]);
         assert_eq!((s.run.actor_adam.lr, s.run.critic_adam.lr), (2e-4, 2e-4));
         // A guard without a policy to guard is refused.
-        let cli = crate::Cli::try_parse_from([
-            "trainer",
-            "train",
+        let s = flagged(&[
             "--task",
             "grasp",
             "--preset",
             "paper",
             "--guard-episodes",
             "10",
-        ])
-        .expect("flags parse");
-        let crate::Command::Train(a) = cli.command else {
-            panic!("not train")
-        };
-        let mut s = TrainSettings::default();
-        apply_flags(&mut s, &a);
+        ]);
         assert!(matches!(
             s.validate(),
             Err(train_settings::SettingsError::GuardWithoutInit)
@@ -775,15 +774,9 @@ mod tests {
 
     /// `trainer train --task stack --preset paper EXTRA` as validated settings.
     fn validate(extra: &[&str]) -> Result<(), train_settings::SettingsError> {
-        let mut args = vec!["trainer", "train", "--task", "stack", "--preset", "paper"];
+        let mut args = vec!["--task", "stack", "--preset", "paper"];
         args.extend_from_slice(extra);
-        let cli = crate::Cli::try_parse_from(args).expect("flags parse");
-        let crate::Command::Train(a) = cli.command else {
-            panic!("not train")
-        };
-        let mut s = TrainSettings::default();
-        apply_flags(&mut s, &a);
-        s.validate()
+        flagged(&args).validate()
     }
 
     #[test]
@@ -863,14 +856,7 @@ mod tests {
         assert!(s.clone.is_some() && s.run.demos.bc_weight != 5.0);
         assert!(s.clone.as_ref().unwrap().members.is_empty());
         // Seed 0 would give Grasp's members negative seeds: refused before any work.
-        let cli =
-            crate::Cli::try_parse_from(["trainer", "train", "--task", "grasp", "--seeds", "0,1"])
-                .expect("flags parse");
-        let crate::Command::Train(a) = cli.command else {
-            panic!("not train")
-        };
-        let mut s = TrainSettings::default();
-        apply_flags(&mut s, &a);
+        let s = flagged(&["--task", "grasp", "--seeds", "0,1"]);
         assert!(matches!(
             s.validate(),
             Err(train_settings::SettingsError::CloneMembers(
