@@ -23,8 +23,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/grasp-distil}
-bin=$(cargo metadata --format-version 1 --no-deps |
-  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/trainer
-[ -x "$bin" ] || cargo build --release -p dex-trainer --bin trainer
+. scripts/lib/target-dir.sh
+bin=$(release_trainer)
 "$bin" train --task grasp --seeds 1 --out "$out" --resume
 sha256sum "$out/clone/seed-1/distil/policy-1.dxpl" "$out/seed-1/policy.dxpl" policies/grasp.dxpl

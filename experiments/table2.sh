@@ -11,10 +11,8 @@ grasp=${1:-policies/grasp.dxpl}
 inhand=${2:-policies/stack-in-hand.dxpl}
 stack=${3:-policies/stack.dxpl}
 episodes=${4:-1000}
-# Where cargo builds (CARGO_TARGET_DIR, build.target-dir or target/).
-bin=$(cargo metadata --format-version 1 --no-deps |
-  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/trainer
-[ -x "$bin" ] || cargo build --release -p dex-trainer --bin trainer
+. scripts/lib/target-dir.sh
+bin=$(release_trainer)
 echo "| task | policy | success over $episodes starts (95% CI) | paper |"
 echo "|---|---|---|---|"
 for row in "grasp $grasp 99.2%" "stack-in-hand $inhand 98.2%" "stack $stack 95.5%"; do

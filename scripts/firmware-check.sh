@@ -80,9 +80,8 @@ rustup target add "$TARGET" >/dev/null 2>&1 || die "rustup target add $TARGET fa
 HOST=$(rustc -vV | sed -n 's/^host: //p')
 [ -n "$HOST" ] || die "cannot tell the host target"
 # Ask cargo where it builds this workspace instead of assuming firmware/target.
-FW_TARGET=$(cd "$FW" && cargo metadata --format-version 1 --no-deps |
-    python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])') ||
-    die "cargo metadata failed in $FW"
+. "$ROOT/scripts/lib/target-dir.sh"
+FW_TARGET=$(cargo_target_dir "$FW") || die "cargo metadata failed in $FW"
 [ -n "$FW_TARGET" ] || die "cargo metadata gave no target directory"
 WORK="$FW_TARGET/firmware-check"
 mkdir -p "$WORK"

@@ -74,12 +74,9 @@ rustup target add "$TARGET" >/dev/null 2>&1 || die "rustup target add $TARGET fa
 }
 
 # --- builds --------------------------------------------------------------------------------------
-target_dir() {
-    (cd "$1" && cargo metadata --format-version 1 --no-deps |
-        python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
-}
-FW_TARGET=$(target_dir "$FW") || die "cargo metadata failed in $FW"
-TARGET_DIR=$(target_dir "$ROOT") || die "cargo metadata failed in $ROOT"
+. "$ROOT/scripts/lib/target-dir.sh"
+FW_TARGET=$(cargo_target_dir "$FW") || die "cargo metadata failed in $FW"
+TARGET_DIR=$(cargo_target_dir "$ROOT") || die "cargo metadata failed in $ROOT"
 W="$FW_TARGET/firmware-sil"
 rm -rf "$W"
 mkdir -p "$W"

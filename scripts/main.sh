@@ -16,9 +16,8 @@ if [ ! -f /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf ]; then
 fi
 bash scripts/setup-mujoco.sh
 cargo build --release --locked -p dex-trainer --bin trainer -p dex-policy-tool --bin policy
-# Where cargo put them: CARGO_TARGET_DIR, build.target-dir or target/.
-BIN=$(cargo metadata --format-version 1 --no-deps |
-  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release
+. scripts/lib/target-dir.sh
+BIN=$(cargo_target_dir)/release
 OUT=${OUT:-runs/main}
 "$BIN/trainer" imitate --out "$OUT" --final-eval-episodes 0 "$@"   # --task grasp is the default
 "$BIN/trainer" eval "$OUT/seed-0/policy.dxpl" --episodes 200

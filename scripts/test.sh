@@ -3,6 +3,7 @@
 # Fails loudly at the first missing tool or failing step.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+. scripts/lib/target-dir.sh
 start=$(date +%s)
 step() { printf '\n==> [%4ss] %s\n' "$(( $(date +%s) - start ))" "$*"; }
 # cargo's target probe runs `rustc -`, which reads its source from stdin: when /dev/null is not
@@ -110,8 +111,7 @@ step "firmware check with another CARGO_TARGET_DIR (the scripts find cargo's out
 # firmware/target (a cold build adds 2-3 min here; a shared CARGO_TARGET_DIR is not copied) but
 # without its binaries: the check must build them there and find them there (those left in the
 # usual folder were built for another policy, so reading them would fail the golden comparison).
-fw_target=$(cd firmware && cargo metadata --format-version 1 --no-deps |
-  python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+fw_target=$(cargo_target_dir firmware)
 host=$(rustc -vV | sed -n 's/^host: //p')
 alt=$(mktemp -d "${TMPDIR:-/tmp}/dex-alt-target.XXXXXX")
 trap 'rm -rf "$alt"; kill "$pytest_pid" 2>/dev/null || true; rm -f "$pytest_log"' EXIT
