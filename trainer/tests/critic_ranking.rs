@@ -36,6 +36,8 @@ fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
         horizon: 8,
         seed: 123,
         threads: 1,
+        replicates: 1,
+        jitter: 0.01,
     };
     let report = run.measure(scene(), &settings, &|| {}).unwrap();
     assert_eq!(report.per_state.len(), 3);
@@ -72,6 +74,8 @@ fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
         }
         t.act(&obs[..nets.obs_dim], &mut a).unwrap();
         let mut row = obs[..nets.obs_dim].to_vec();
+        assert_eq!(st.input, row, "state {i}: the networks' input");
+        assert_eq!(st.candidates[0], a, "state {i}: the actor's action first");
         row.extend_from_slice(&a);
         let q = |params: &[f32]| {
             nets.critic
@@ -95,6 +99,50 @@ fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
     }
     for s in &report.stats {
         assert!((0.0..=1.0).contains(&s.agreement), "{s:?}");
+    }
+    assert_eq!(report.rollout_agreement, None);
+
+    // Replicates: the first rollout is the candidate as drawn (the single rollout's value);
+    // without jitter every replicate repeats it, so one orders the other's pairs fully.
+    let exact = run
+        .measure(
+            scene(),
+            &RankingSettings {
+                replicates: 3,
+                jitter: 0.0,
+                ..settings
+            },
+            &|| {},
+        )
+        .unwrap();
+    assert_eq!(exact.rollout_agreement, Some(1.0));
+    let jittered = run
+        .measure(
+            scene(),
+            &RankingSettings {
+                replicates: 2,
+                ..settings
+            },
+            &|| {},
+        )
+        .unwrap();
+    for ((one, e), j) in report
+        .per_state
+        .iter()
+        .zip(&exact.per_state)
+        .zip(&jittered.per_state)
+    {
+        assert_eq!(e.replicate_q.len(), 3);
+        assert!(e.replicate_q.iter().all(|r| *r == one.true_q));
+        for (m, v) in e.true_q.iter().zip(&one.true_q) {
+            assert!(
+                (m - v).abs() <= 1e-12 * v.abs().max(1.0),
+                "mean {m} of three {v}"
+            );
+        }
+        assert_eq!(j.replicate_q[0], one.true_q);
+        assert_ne!(j.replicate_q[1], one.true_q, "the jitter changed nothing");
+        assert_eq!(j.candidates, one.candidates);
     }
 }
 

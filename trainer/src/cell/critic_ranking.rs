@@ -65,6 +65,14 @@ pub struct RankingSettings {
     pub seed: u64,
     /// Threads (states are split among them; the result does not depend on the count).
     pub threads: usize,
+    /// Rollouts per candidate (at least 1). The first executes the candidate as drawn; each
+    /// other adds Gaussian noise of `jitter` to its first action, a difference no critic can
+    /// resolve. The true value is their mean, and the second's order of the candidates against
+    /// the first's ([`RankingReport::rollout_agreement`]) is what one rollout predicts of
+    /// another: the ceiling of any rater where contacts make the outcome chaotic.
+    pub replicates: u32,
+    /// Noise on the first action of the replicate rollouts, in action units.
+    pub jitter: f32,
 }
 
 impl RankingSettings {
@@ -85,6 +93,12 @@ impl RankingSettings {
         if self.horizon == 0 {
             return bad("horizon", "must be at least 1");
         }
+        if self.replicates == 0 {
+            return bad("replicates", "must be at least 1");
+        }
+        if !(self.jitter >= 0.0 && self.jitter.is_finite()) {
+            return bad("jitter", "must be non-negative and finite");
+        }
         Ok(())
     }
 }
@@ -96,10 +110,19 @@ pub struct StateRanking {
     pub start_seed: u64,
     /// Step of the episode the state is at.
     pub step: u32,
-    /// Each candidate's discounted return over the horizon (the actor's action first).
+    /// Each candidate's discounted return over the horizon (the actor's action first); the mean
+    /// of its rollouts with [`RankingSettings::replicates`].
     pub true_q: Vec<f64>,
+    /// Each rollout's return, `replicates x candidates` (empty with one rollout per candidate).
+    pub replicate_q: Vec<Vec<f64>>,
     /// Each rater's value of each candidate (raters in [`RankingReport::raters`] order).
     pub rated: Vec<Vec<f32>>,
+    /// The networks' input at the state (the observation, with the task features when the run
+    /// takes them): with [`StateRanking::candidates`], what another critic needs to be rated on
+    /// the same states ([`rate`]).
+    pub input: Vec<f32>,
+    /// The candidate actions, the actor's first.
+    pub candidates: Vec<[f32; ACT_DIM]>,
 }
 
 /// How one rater orders the candidates, against the true order.
@@ -153,6 +176,14 @@ pub struct RankingReport {
     /// Share of states where a noisy candidate is truly better than the actor's action (what
     /// a critic that ranked perfectly could improve on).
     pub actor_beaten: f64,
+    /// With replicates: of the candidate pairs the first rollouts order (unequal values), the
+    /// share the second rollouts order the same way, ties counted as half (what a rater that
+    /// knew one rollout's outcome would score against another's).
+    pub rollout_agreement: Option<f64>,
+    /// Rollouts per candidate and the jitter of the replicates.
+    pub replicates: u32,
+    /// Noise on the replicates' first action.
+    pub jitter: f32,
     /// Each rater's agreement with the true order.
     pub stats: Vec<RaterStats>,
     /// Every state, in order.
@@ -281,17 +312,32 @@ impl RankedRun {
             }
             candidates.push(a);
         }
-        let mut true_q = Vec::with_capacity(k);
+        let reps = s.replicates as usize;
+        let mut replicate_q = vec![Vec::with_capacity(k); reps];
         for a in &candidates {
-            env.restore(&snapshot)?;
-            let mut g = f64::from(env.step(a)?.reward);
-            let mut discount = f64::from(self.gamma);
-            for _ in 1..s.horizon {
-                let next = self.act(env, &mut scratch)?;
-                g += discount * f64::from(env.step(&next)?.reward);
-                discount *= f64::from(self.gamma);
+            for (r, values) in replicate_q.iter_mut().enumerate() {
+                let mut first = *a;
+                if r > 0 {
+                    for v in &mut first {
+                        *v = (*v + rng.normal(0.0, s.jitter)).clamp(-1.0, 1.0);
+                    }
+                }
+                env.restore(&snapshot)?;
+                let mut g = f64::from(env.step(&first)?.reward);
+                let mut discount = f64::from(self.gamma);
+                for _ in 1..s.horizon {
+                    let next = self.act(env, &mut scratch)?;
+                    g += discount * f64::from(env.step(&next)?.reward);
+                    discount *= f64::from(self.gamma);
+                }
+                values.push(g);
             }
-            true_q.push(g);
+        }
+        let true_q: Vec<f64> = (0..k)
+            .map(|j| replicate_q.iter().map(|v| v[j]).sum::<f64>() / reps as f64)
+            .collect();
+        if reps == 1 {
+            replicate_q.clear();
         }
         let d = self.nets.obs_dim + ACT_DIM;
         let mut rows = vec![0.0f32; k * d];
@@ -328,7 +374,10 @@ impl RankedRun {
             start_seed,
             step,
             true_q,
+            replicate_q,
             rated,
+            input: x,
+            candidates,
         })
     }
 
@@ -359,6 +408,7 @@ impl RankedRun {
             .filter(|st| st.true_q[1..].iter().any(|&v| v > st.true_q[0]))
             .count() as f64
             / n;
+        let rollout_agreement = (s.replicates > 1).then(|| rollout_agreement(&per_state));
         let stats = raters
             .iter()
             .enumerate()
@@ -377,6 +427,9 @@ impl RankedRun {
             gap_quartiles,
             mean_actor_q,
             actor_beaten,
+            rollout_agreement,
+            replicates: s.replicates,
+            jitter: s.jitter,
             stats,
             per_state,
         }
@@ -386,6 +439,33 @@ impl RankedRun {
 /// Every pair `(i, j)`, `i < j`, of `k` candidates.
 fn pairs(k: usize) -> impl Iterator<Item = (usize, usize)> {
     (0..k).flat_map(move |i| (i + 1..k).map(move |j| (i, j)))
+}
+
+/// Of the candidate pairs the first replicate orders, the share the second orders the same way
+/// (ties in the second count as half).
+fn rollout_agreement(states: &[StateRanking]) -> f64 {
+    let (mut n, mut agree) = (0u64, 0.0f64);
+    for st in states {
+        let [first, second, ..] = &st.replicate_q[..] else {
+            continue;
+        };
+        for (i, j) in pairs(first.len()) {
+            let d = first[i] - first[j];
+            if d == 0.0 {
+                continue;
+            }
+            let e = second[i] - second[j];
+            n += 1;
+            agree += if e == 0.0 {
+                0.5
+            } else if d * e > 0.0 {
+                1.0
+            } else {
+                0.0
+            };
+        }
+    }
+    if n == 0 { 0.0 } else { agree / n as f64 }
 }
 
 /// Whether some of `v` differ.
@@ -405,12 +485,25 @@ fn argmax<T: PartialOrd + Copy>(v: &[T]) -> usize {
 }
 
 fn rater_stats(name: &str, r: usize, states: &[StateRanking], quartiles: &[f64; 3]) -> RaterStats {
+    let rated: Vec<&[f32]> = states.iter().map(|st| &st.rated[r][..]).collect();
+    rate(name, states, &rated, quartiles)
+}
+
+/// How the values `rated[i]` (one per candidate of `states[i]`) order the candidates, against the
+/// true order: the statistics of [`RankingReport::stats`] for a rater that is not the run's own
+/// (a critic trained apart and rated on a report's states; `quartiles` from
+/// [`RankingReport::gap_quartiles`]). `rated` holds one slice per state, as long as its candidates.
+pub fn rate(
+    name: &str,
+    states: &[StateRanking],
+    rated: &[&[f32]],
+    quartiles: &[f64; 3],
+) -> RaterStats {
     let (mut pairs_n, mut agree) = (0u64, 0u64);
     let mut by_gap = [(0u64, 0u64); 4];
     let (mut best, mut chance, mut gapped) = (0usize, 0.0f64, 0usize);
     let (mut sxy, mut sxx, mut syy) = (0.0f64, 0.0f64, 0.0f64);
-    for st in states {
-        let rated = &st.rated[r];
+    for (st, &rated) in states.iter().zip(rated) {
         for (i, j) in pairs(st.true_q.len()) {
             let d = st.true_q[i] - st.true_q[j];
             if d == 0.0 {
@@ -462,11 +555,15 @@ mod tests {
     use super::*;
 
     fn state(true_q: Vec<f64>, rated: Vec<f32>) -> StateRanking {
+        let k = true_q.len();
         StateRanking {
             start_seed: 0,
             step: 0,
             true_q,
+            replicate_q: Vec::new(),
             rated: vec![rated],
+            input: Vec::new(),
+            candidates: vec![[0.0; ACT_DIM]; k],
         }
     }
 
@@ -510,6 +607,14 @@ mod tests {
     }
 
     #[test]
+    fn replicates_agree_where_they_order_alike_and_ties_count_half() {
+        let mut st = state(vec![0.0; 3], vec![0.0; 3]);
+        // First: 0 < 1 < 2. Second: 0 < 1 (agrees), 0 = 2 (tie: half), 2 < 1 (disagrees).
+        st.replicate_q = vec![vec![0.0, 1.0, 2.0], vec![0.0, 2.0, 0.0]];
+        assert!((rollout_agreement(&[st]) - 1.5 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
     fn settings_out_of_range_are_refused() {
         let ok = RankingSettings {
             states: 2,
@@ -518,6 +623,8 @@ mod tests {
             horizon: 10,
             seed: 0,
             threads: 1,
+            replicates: 1,
+            jitter: 0.01,
         };
         assert!(ok.validate().is_ok());
         for bad in [
@@ -532,6 +639,11 @@ mod tests {
                 ..ok
             },
             RankingSettings { horizon: 0, ..ok },
+            RankingSettings {
+                replicates: 0,
+                ..ok
+            },
+            RankingSettings { jitter: -1.0, ..ok },
         ] {
             assert!(matches!(
                 bad.validate(),

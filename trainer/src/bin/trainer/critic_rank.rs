@@ -36,6 +36,14 @@ pub struct CriticRankArgs {
     /// Threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// Rollouts per candidate: the candidate as drawn, then with `--jitter` noise on its first
+    /// action; the true value is their mean, and the second rollout's order against the first's
+    /// is printed (the ceiling of any rater when the outcome is chaotic).
+    #[arg(long, default_value_t = 1)]
+    replicates: u32,
+    /// Noise on the replicate rollouts' first action, in action units.
+    #[arg(long, default_value_t = 0.01)]
+    jitter: f32,
     /// Write the measurement (every state's values too) here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -55,6 +63,8 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
         horizon: args.horizon,
         seed: args.seed,
         threads: args.threads,
+        replicates: args.replicates,
+        jitter: args.jitter,
     };
     let pb = bar(
         u64::from(args.states),
@@ -86,6 +96,14 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
         report.gap_quartiles[1],
         report.gap_quartiles[2]
     );
+    if let Some(a) = report.rollout_agreement {
+        println!(
+            "  {} rollouts per candidate (jitter {}): one rollout orders {:.1}% of another's pairs the same way (ties half); the true values are their mean",
+            report.replicates,
+            report.jitter,
+            100.0 * a
+        );
+    }
     for s in &report.stats {
         println!(
             "  {:<12} pairs ordered right {:.1}% of {} (by gap quarter {:.1} / {:.1} / {:.1} / {:.1}%), a best candidate found {:.1}% (chance {:.1}%), within-state correlation {:.3}",

@@ -310,6 +310,19 @@ impl Trainer {
         &self.shared.target_critic
     }
 
+    /// The stored transitions: the shared replay buffer, or each worker's own (what a critic
+    /// trained apart from the run, or a diagnosis, reads; in checkpoints since they resume runs).
+    pub fn replays(&self) -> Vec<&Replay> {
+        match &self.shared_replay {
+            Some(r) => vec![r],
+            None => self
+                .workers
+                .iter()
+                .filter_map(|w| w.replay.as_ref())
+                .collect(),
+        }
+    }
+
     /// Cumulative counters.
     pub fn progress(&self) -> Progress {
         let per: Vec<u64> = self.workers.iter().map(|w| w.transitions).collect();
