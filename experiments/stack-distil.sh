@@ -10,23 +10,19 @@
 # against it (OUT/seed-1/guard.json says which of the two OUT/seed-1/policy.dxpl is).
 # Usage: bash experiments/stack-distil.sh [OUT]   (default runs/stack-distil; the same command
 # resumes a stopped or killed run, redoing no finished member).
-# Compute on dev-2c (2 cores, 2026-12-04/05): members 553-945 s each on a loaded core, the
-# distillation 943 s; about 50 min of wall to the distilled file by these figures, then the
-# fine-tune (40,000 transitions) and the guard (500 starts). Not yet run end to end: the
-# shipped file's members are session 14's clone (seed 1), session 22's seeds 2-3 and session 23's
-# seeds 4-7, each made by `trainer imitate --task stack --seeds K` in its session (seed 1 on
-# another machine, whose GEMM may round differently), so a fresh run may differ from
-# policies/stack.dxpl in its bits. Checked in session 24 without running it: the pipeline's
-# member of seed 2 has the settings of session 22's run of that seed (settings.json: only
-# eval_threads differs, 1 against 2, which no file's bits depend on; the members differ only in
-# their seeds), and its distillation has those of session 23's (the teacher's paths aside;
-# test the_default_members_at_seed_one_are_the_shipped_recipes in
-# trainer/src/pipeline/train_settings.rs). On Grasp the same stage reproduced the shipped file
-# bit for bit (experiments/grasp-distil.sh).
+# Verified end to end in sessions 24-25 (dev-2c, 2 cores shared with one to three other jobs,
+# 2026-12-05 03:54-05:42 UTC, stopped between the sessions and resumed with the same command):
+# the seven members are bit for bit the shipped file's (session 14's clone for seed 1, sha256
+# 2f83e346c584...; session 22's seeds 2-3; session 23's seeds 4-7), the distilled file
+# OUT/clone/seed-1/distil/policy-1.dxpl is policies/stack.dxpl (sha256 1f15aadc0503...), the
+# fine-tune lost to it on the guard's 500 starts (486 against 498, p = 0.0005), so the guard
+# shipped it unchanged and OUT/seed-1/policy.dxpl is policies/stack.dxpl bit for bit too. Wall,
+# two at a time: members 1089 s (seeds 1-2), 604 s (3-4), 848 s (5-6), 584 s (7); distillation
+# 651 s (round 0) + 768 s (round 1); fine-tune and guard about 5 min: about 81 min in all.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/stack-distil}
 . scripts/lib/target-dir.sh
 bin=$(release_trainer)
 "$bin" train --task stack --seeds 1 --out "$out" --resume
-sha256sum "$out/clone/seed-1/distil/policy-1.dxpl" policies/stack.dxpl
+sha256sum "$out/clone/seed-1/distil/policy-1.dxpl" "$out/seed-1/policy.dxpl" policies/stack.dxpl

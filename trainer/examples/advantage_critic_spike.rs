@@ -36,6 +36,17 @@ struct Args {
     variants: Vec<String>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Train on held actions instead of the run's replay: this many environment steps of the
+    /// run's actor where every `--hold` steps an action (the actor's plus noise `--collect-noise`,
+    /// or with probability 0.2 the actor's own) is held for `--hold` steps; the critic's target
+    /// is the held steps' discounted reward plus `gamma^hold Q'(s', mu(s'))`. Rate it on a report
+    /// made with `critic-rank --hold` of the same length.
+    #[arg(long)]
+    collect: Option<u64>,
+    #[arg(long, default_value_t = 5)]
+    hold: u32,
+    #[arg(long, default_value_t = 0.3)]
+    collect_noise: f32,
 }
 
 /// One trainable network with its target and Adam state.
@@ -91,9 +102,70 @@ fn concat(obs: &[f32], act: &[f32], n: usize, od: usize) -> Vec<f32> {
     out
 }
 
+/// Transitions of held actions: `(x, a, sum_{i<hold} gamma^i r, x', gamma^(hold - 1))`.
+fn collect_held(
+    nets: &dex_trainer::learn::Networks,
+    actor: &[f32],
+    settings: &dex_trainer::pipeline::train_settings::TrainSettings,
+    steps: u64,
+    args: &Args,
+    gamma: f32,
+) -> anyhow::Result<Replay> {
+    use dex_runtime::features::{INPUT_MAX, policy_input};
+    let scene = dex_trainer::env::Scene::load()?;
+    let mut env =
+        dex_trainer::env::JacoEnv::new(&scene, settings.reward.env_config(settings.task.task()));
+    let od = nets.obs_dim;
+    let mut replay = Replay::new(steps as usize / args.hold as usize + 1, od, ACT_DIM);
+    let mut rng = Rng::derive(args.seed, 7);
+    let mut scratch = nets.actor.scratch(1);
+    let mut taken = 0u64;
+    let mut episode = 0u64;
+    while taken < steps {
+        let seed = dex_trainer::env::seeds::episode_seed(
+            dex_trainer::env::seeds::RANKING_SEED + 500_000,
+            episode,
+        );
+        episode += 1;
+        env.reset(seed)?;
+        let mut done = false;
+        while !done && taken < steps {
+            let mut buf = [0.0f32; INPUT_MAX];
+            let x = policy_input(env.observation(), od, &mut buf).to_vec();
+            let mut a = [0.0f32; ACT_DIM];
+            a.copy_from_slice(&nets.actor.forward(actor, &x, 1, &mut scratch)?[..ACT_DIM]);
+            if rng.uniform_f64() >= 0.2 {
+                for v in &mut a {
+                    *v = (*v + rng.normal(0.0, args.collect_noise)).clamp(-1.0, 1.0);
+                }
+            }
+            let (mut r, mut discount) = (0.0f32, 1.0f32);
+            for _ in 0..args.hold {
+                let out = env.step(&a)?;
+                r += discount * out.reward;
+                discount *= gamma;
+                taken += 1;
+                if out.done {
+                    done = true;
+                    break;
+                }
+            }
+            let mut buf2 = [0.0f32; INPUT_MAX];
+            let x2 = policy_input(env.observation(), od, &mut buf2).to_vec();
+            // The time limit is not terminal: bootstrap over it.
+            replay.push_discounted(&x, &a, r, &x2, discount / gamma);
+        }
+    }
+    println!(
+        "collected {} held transitions over {episode} episodes",
+        replay.len()
+    );
+    Ok(replay)
+}
+
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
-    let (_, t) = load_run(&args.seed_dir)?;
+    let (settings, t) = load_run(&args.seed_dir)?;
     let cfg = t.config().clone();
     let nets = t.networks().clone();
     let (od, ad) = (nets.obs_dim, nets.act_dim);
@@ -101,8 +173,16 @@ fn main() -> anyhow::Result<()> {
         bail!("action size {ad}");
     }
     let actor = t.actor().1.to_vec();
+    let gamma = cfg.ddpg.gamma;
+    let collected;
     let replays: Vec<&Replay> = t.replays();
-    let replay = *replays.first().context("the run stores no transitions")?;
+    let replay = match args.collect {
+        None => *replays.first().context("the run stores no transitions")?,
+        Some(steps) => {
+            collected = collect_held(&nets, &actor, &settings, steps, &args, gamma)?;
+            &collected
+        }
+    };
     if replay.dims() != (od, ad) {
         bail!("replay dims {:?}", replay.dims());
     }
@@ -135,7 +215,6 @@ fn main() -> anyhow::Result<()> {
     println!("{own:?}");
 
     let n = cfg.ddpg.batch_size;
-    let gamma = cfg.ddpg.gamma;
     let tau = match cfg.ddpg.target {
         dex_trainer::learn::TargetUpdate::Polyak { tau } => tau,
         dex_trainer::learn::TargetUpdate::Copy { .. } => 0.005,

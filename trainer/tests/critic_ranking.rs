@@ -38,6 +38,7 @@ fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
         threads: 1,
         replicates: 1,
         jitter: 0.01,
+        hold: 1,
     };
     let report = run.measure(scene(), &settings, &|| {}).unwrap();
     assert_eq!(report.per_state.len(), 3);
@@ -143,6 +144,40 @@ fn the_ranking_reads_the_runs_networks_and_the_simulator_as_they_are() {
         assert_eq!(j.replicate_q[0], one.true_q);
         assert_ne!(j.replicate_q[1], one.true_q, "the jitter changed nothing");
         assert_eq!(j.candidates, one.candidates);
+    }
+
+    // Held candidates: a noisy candidate executed three times, then the actor.
+    let held = run
+        .measure(
+            scene(),
+            &RankingSettings {
+                hold: 3,
+                ..settings
+            },
+            &|| {},
+        )
+        .unwrap();
+    for (st, one) in held.per_state.iter().zip(&report.per_state) {
+        assert_eq!(st.candidates, one.candidates);
+        let mut obs = env.reset(st.start_seed).unwrap();
+        let mut a = [0.0f32; 9];
+        for _ in 0..st.step {
+            t.act(&obs[..nets.obs_dim], &mut a).unwrap();
+            obs = env.step(&a).unwrap().observation;
+        }
+        let (mut g, mut discount) = (0.0f64, 1.0f64);
+        for k in 0..settings.horizon {
+            if k < 3 {
+                a = st.candidates[1];
+            } else {
+                t.act(&obs[..nets.obs_dim], &mut a).unwrap();
+            }
+            let out = env.step(&a).unwrap();
+            g += discount * f64::from(out.reward);
+            discount *= gamma;
+            obs = out.observation;
+        }
+        assert_eq!(st.true_q[1], g, "held candidate at state {}", st.step);
     }
 }
 

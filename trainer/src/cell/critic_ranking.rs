@@ -73,6 +73,9 @@ pub struct RankingSettings {
     pub replicates: u32,
     /// Noise on the first action of the replicate rollouts, in action units.
     pub jitter: f32,
+    /// Steps each candidate is held for before the actor takes over (1: one step, the critic's
+    /// own question; more: the value of an action held that long, for critics of held actions).
+    pub hold: u32,
 }
 
 impl RankingSettings {
@@ -92,6 +95,9 @@ impl RankingSettings {
         }
         if self.horizon == 0 {
             return bad("horizon", "must be at least 1");
+        }
+        if self.hold == 0 || self.hold > self.horizon {
+            return bad("hold", "must be at least 1 and at most the horizon");
         }
         if self.replicates == 0 {
             return bad("replicates", "must be at least 1");
@@ -184,6 +190,8 @@ pub struct RankingReport {
     pub replicates: u32,
     /// Noise on the replicates' first action.
     pub jitter: f32,
+    /// Steps each candidate was held for.
+    pub hold: u32,
     /// Each rater's agreement with the true order.
     pub stats: Vec<RaterStats>,
     /// Every state, in order.
@@ -325,8 +333,12 @@ impl RankedRun {
                 env.restore(&snapshot)?;
                 let mut g = f64::from(env.step(&first)?.reward);
                 let mut discount = f64::from(self.gamma);
-                for _ in 1..s.horizon {
-                    let next = self.act(env, &mut scratch)?;
+                for t in 1..s.horizon {
+                    let next = if t < s.hold {
+                        first
+                    } else {
+                        self.act(env, &mut scratch)?
+                    };
                     g += discount * f64::from(env.step(&next)?.reward);
                     discount *= f64::from(self.gamma);
                 }
@@ -430,6 +442,7 @@ impl RankedRun {
             rollout_agreement,
             replicates: s.replicates,
             jitter: s.jitter,
+            hold: s.hold,
             stats,
             per_state,
         }
@@ -625,6 +638,7 @@ mod tests {
             threads: 1,
             replicates: 1,
             jitter: 0.01,
+            hold: 1,
         };
         assert!(ok.validate().is_ok());
         for bad in [
@@ -643,6 +657,8 @@ mod tests {
                 replicates: 0,
                 ..ok
             },
+            RankingSettings { hold: 0, ..ok },
+            RankingSettings { hold: 11, ..ok },
             RankingSettings { jitter: -1.0, ..ok },
         ] {
             assert!(matches!(

@@ -44,6 +44,10 @@ pub struct CriticRankArgs {
     /// Noise on the replicate rollouts' first action, in action units.
     #[arg(long, default_value_t = 0.01)]
     jitter: f32,
+    /// Steps each candidate is held for before the actor takes over (the values of held
+    /// actions; the run's critic rates one step's).
+    #[arg(long, default_value_t = 1)]
+    hold: u32,
     /// Write the measurement (every state's values too) here as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -65,6 +69,7 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
         threads: args.threads,
         replicates: args.replicates,
         jitter: args.jitter,
+        hold: args.hold,
     };
     let pb = bar(
         u64::from(args.states),
@@ -74,11 +79,12 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
     let report = run.measure(&scene, &settings, &|| pb.inc(1))?;
     pb.finish_and_clear();
     println!(
-        "{}: {} states x {} candidates (noise {}), rollouts of {} steps at gamma {}",
+        "{}: {} states x {} candidates (noise {}, held {} steps), rollouts of {} steps at gamma {}",
         args.run.display(),
         report.states,
         report.candidates,
         report.noise,
+        report.hold,
         report.horizon,
         report.gamma
     );
