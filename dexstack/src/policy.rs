@@ -65,12 +65,7 @@ impl LoadedPolicy {
             let view = decode_jaco_policy(aligned.as_bytes())?;
             let net =
                 Network::new(&view, aligned.as_bytes()).map_err(|e| Error::Policy(e.into()))?;
-            let task = match view.body().task {
-                dex_policy::Task::Reach => dex_env::Task::Reach,
-                dex_policy::Task::Grasp => dex_env::Task::Grasp,
-                dex_policy::Task::StackInHand => dex_env::Task::StackInHand,
-                dex_policy::Task::Stack => dex_env::Task::Stack,
-            };
+            let task = dex_env::Task::from(view.body().task);
             (net, describe(&view, file, task), task)
         };
         Ok(LoadedPolicy {

@@ -23,6 +23,18 @@ pub enum Task {
     Reach,
 }
 
+impl From<dex_policy::Task> for Task {
+    /// The task a policy file names (its header's task field).
+    fn from(t: dex_policy::Task) -> Self {
+        match t {
+            dex_policy::Task::Grasp => Task::Grasp,
+            dex_policy::Task::StackInHand => Task::StackInHand,
+            dex_policy::Task::Stack => Task::Stack,
+            dex_policy::Task::Reach => Task::Reach,
+        }
+    }
+}
+
 impl Task {
     /// All tasks.
     pub const ALL: [Task; 4] = [Task::Grasp, Task::StackInHand, Task::Stack, Task::Reach];
@@ -124,6 +136,14 @@ mod tests {
         for t in Task::ALL {
             let name = format!("{t:?}");
             assert!(!name.is_empty());
+        }
+        for (file, t) in [
+            (dex_policy::Task::Grasp, Task::Grasp),
+            (dex_policy::Task::StackInHand, Task::StackInHand),
+            (dex_policy::Task::Stack, Task::Stack),
+            (dex_policy::Task::Reach, Task::Reach),
+        ] {
+            assert_eq!(Task::from(file), t, "a file's {file:?}");
         }
         assert_eq!("stack-in-hand".parse::<Task>(), Ok(Task::StackInHand));
         assert!("lift".parse::<Task>().is_err());

@@ -100,12 +100,7 @@ fn paired(a: &[(f64, bool)], b: &[(f64, bool)]) -> [usize; 4] {
 }
 
 fn task_of(view: &PolicyView<'_>) -> Task {
-    match view.body().task {
-        dex_policy::Task::Reach => Task::Reach,
-        dex_policy::Task::Grasp => Task::Grasp,
-        dex_policy::Task::StackInHand => Task::StackInHand,
-        dex_policy::Task::Stack => Task::Stack,
-    }
+    Task::from(view.body().task)
 }
 
 fn main() -> anyhow::Result<ExitCode> {

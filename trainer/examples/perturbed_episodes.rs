@@ -48,12 +48,7 @@ fn main() -> anyhow::Result<()> {
         .with_context(|| format!("cannot read {}", args.policy.display()))?;
     let aligned = dex_runtime::testkit::aligned_copy(&bytes);
     let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes())?;
-    let task = match view.body().task {
-        dex_policy::Task::Grasp => Task::Grasp,
-        dex_policy::Task::StackInHand => Task::StackInHand,
-        dex_policy::Task::Stack => Task::Stack,
-        dex_policy::Task::Reach => Task::Reach,
-    };
+    let task = Task::from(view.body().task);
     let mut mlp = Mlp::<1024>::new(&view)?;
     let scene = Scene::load().context("cannot build the MuJoCo scene")?;
     let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
