@@ -204,6 +204,10 @@ fn bad_settings_are_refused() {
     );
     // A settings file written before the filter existed reads as it did.
     let json = serde_json::to_value(tiny()).unwrap();
+    assert!(
+        !json.as_object().unwrap().contains_key("self_imitation"),
+        "a run without self-imitation writes the settings it wrote before"
+    );
     let mut old = json.as_object().unwrap().clone();
     old.remove("dagger_failures_only");
     old.remove("dagger_repeat");
@@ -322,4 +326,100 @@ fn the_reach_recipe_learns_reach() {
         .expect("eval");
     let _ = std::fs::remove_dir_all(&dir);
     assert!(e.successes >= 45, "Reach (imitation) {e}");
+}
+
+/// Self-imitation: a policy file's noisy episodes, successes only, join round 0 labelled with the
+/// executed actions; the file keeps both; a policy of another task or bad settings are refused
+/// before the folder is made.
+#[test]
+fn self_imitation_clones_the_executed_actions_of_a_policys_successful_noisy_episodes() {
+    use dex_trainer::pipeline::self_imitation::{SELF_DEMOS, SelfImitation, executed_labels};
+    let grasp_clone = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/grasp_clone_session14.dxpl"
+    ));
+    let si = SelfImitation {
+        policy: grasp_clone.clone(),
+        episodes: 4,
+        arm_noise: 0.1,
+        finger_noise: 0.05,
+        repeat: 2,
+    };
+    let scene = Scene::load().unwrap();
+    let dir = std::env::temp_dir().join(format!("dex-imitate-self-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let cfg = ImitationConfig {
+        rounds: 0,
+        self_imitation: Some(si.clone()),
+        ..tiny()
+    };
+    let s = run_imitation(&scene, &cfg, &dir, &mut |_| {}).unwrap();
+    let set = DemoSet::load(&dir.join(SELF_DEMOS)).unwrap();
+    assert_eq!(set.header.settings, si.record_settings(Task::Grasp, 0));
+    assert_eq!(set.header.settings.keep, Keep::Successes);
+    assert_eq!(set.header.tried, 4);
+    assert!(
+        set.header.episodes >= 1,
+        "the clone succeeds under small noise"
+    );
+    assert_eq!(set.header.episodes, set.header.successes);
+    assert_eq!(set.rows.len(), 150 * set.header.episodes as usize);
+    assert!(set.rows.iter().any(|r| r.label != r.executed), "noise");
+    // The file keeps the policy's own action as the label; the cloning data the executed one.
+    let relabelled = executed_labels(set.clone());
+    assert!(relabelled.rows.iter().all(|r| r.label == r.executed));
+    assert!(
+        relabelled
+            .rows
+            .iter()
+            .zip(&set.rows)
+            .all(|(a, b)| a.obs == b.obs && a.executed == b.executed)
+    );
+    assert_eq!(
+        s.records[0].episodes,
+        3 + 2 + 4,
+        "tried episodes, copies not counted"
+    );
+    // Recorded once: a resumed run reads the file.
+    let again = run_imitation(&scene, &cfg, &dir, &mut |_| {}).unwrap();
+    assert_eq!(again.records, s.records);
+    std::fs::remove_dir_all(&dir).ok();
+    // A Grasp policy cannot drive a Reach run's episodes: refused before the folder is made.
+    let reach = ImitationConfig {
+        task: Task::Reach,
+        self_imitation: Some(si.clone()),
+        ..tiny()
+    };
+    let e = run_imitation(&scene, &reach, &dir, &mut |_| {}).unwrap_err();
+    assert!(matches!(e, ImitationError::Settings(_)), "{e}");
+    assert!(e.to_string().contains("Grasp"), "{e}");
+    assert!(!dir.exists(), "the run folder is not even made");
+    for bad in [
+        SelfImitation {
+            episodes: 0,
+            ..si.clone()
+        },
+        SelfImitation {
+            repeat: 0,
+            ..si.clone()
+        },
+        SelfImitation {
+            arm_noise: 0.0,
+            finger_noise: 0.0,
+            ..si.clone()
+        },
+        SelfImitation {
+            arm_noise: f32::NAN,
+            ..si.clone()
+        },
+    ] {
+        let cfg = ImitationConfig {
+            self_imitation: Some(bad),
+            ..tiny()
+        };
+        assert!(
+            matches!(cfg.validate(), Err(ImitationError::Settings(_))),
+            "{cfg:?}"
+        );
+    }
 }

@@ -28,6 +28,7 @@ use crate::files::demos::{
 use crate::learn::EvalRecord;
 use crate::learn::bc::BcConfig;
 use crate::pipeline::cloning::{CloneError, clone_repeated_to_policy_file};
+use crate::pipeline::self_imitation::{SELF_DEMOS, SelfImitation, executed_labels};
 
 // Start seed of the per-round selection evaluation (`env::seeds::SELECTION_SEED`, checkpoint
 // selection's seed), under its old path.
@@ -81,6 +82,10 @@ pub struct ImitationConfig {
     pub close_bursts: f32,
     /// Open bursts in the DART episodes ([`RecordSettings::open_bursts`]; 0: none).
     pub open_bursts: f32,
+    /// Success-filtered self-imitation ([`SelfImitation`]): a policy file's successful noisy
+    /// episodes join round 0's data, labelled with their executed actions. None: off.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub self_imitation: Option<SelfImitation>,
     /// Behaviour cloning settings (its seed is the run's seed).
     pub bc: BcConfig,
     /// Selection starts per round (0: keep the last round).
@@ -116,6 +121,7 @@ impl Default for ImitationConfig {
             tuck_ramp: false,
             teacher_policies: Vec::new(),
             teacher_pair: None,
+            self_imitation: None,
             bc: BcConfig {
                 steps: 30_000,
                 features: true,
@@ -200,6 +206,9 @@ impl ImitationConfig {
             return Err(ImitationError::Settings(
                 "episodes_per_round must be at least 1 when there are DAgger rounds".into(),
             ));
+        }
+        if let Some(si) = &self.self_imitation {
+            si.validate()?;
         }
         self.bc
             .validate()
@@ -404,6 +413,9 @@ pub fn run_imitation(
     // nothing behind.
     let ensemble = teacher_ensemble(cfg)?;
     let pair = teacher_pair(cfg)?;
+    if let Some(si) = &cfg.self_imitation {
+        si.policy(cfg.task)?;
+    }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     // Held until the run ends: a second run in this folder is refused at once.
     let _lock = crate::pipeline::run_lock::RunLock::acquire(dir)?;
@@ -470,6 +482,19 @@ pub fn run_imitation(
             env_steps += set.header.env_steps;
             tried += u64::from(set.header.tried);
             sets.push((set, if round > 0 { cfg.dagger_repeat } else { 1 }));
+        }
+        if let (0, Some(si)) = (round, &cfg.self_imitation) {
+            let path = dir.join(SELF_DEMOS);
+            if !path.exists() {
+                on_event(ImitationEvent::Recording {
+                    round,
+                    episodes: si.episodes,
+                });
+            }
+            let set = si.load_or_record(scene, cfg.task, cfg.seed, &path)?;
+            env_steps += set.header.env_steps;
+            tried += u64::from(set.header.tried);
+            sets.push((executed_labels(set), si.repeat));
         }
         let file =
             if policy_path.exists() && records.iter().any(|r| r.eval_index == u64::from(round)) {

@@ -9,6 +9,8 @@
 //!   cloning plus DAgger rounds with the Markov demonstrator as the oracle (`trainer imitate`);
 //!   [`clone_members`]: the clone stage as an ensemble of imitation runs distilled into one
 //!   network (members, their seeds from the pipeline seed, the distillation's settings).
+//! - [`self_imitation`]: a policy file's successful noisy episodes as cloning data labelled with
+//!   their executed actions (`trainer imitate --self-imitation`).
 //! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
 //! - [`run_plots`]: a run folder's learning curves, drawn by [`plot`] (mean and min-max band over
 //!   seeds, like the paper's figures).
@@ -19,5 +21,6 @@ pub mod imitation;
 pub mod plot;
 pub mod run_lock;
 pub mod run_plots;
+pub mod self_imitation;
 pub mod train_run;
 pub mod train_settings;

@@ -9,6 +9,7 @@ use indicatif::ProgressBar;
 use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::pipeline::imitation::{ImitationConfig, ImitationEvent, run_imitation};
+use dex_trainer::pipeline::self_imitation::SelfImitation;
 
 use dex_trainer::pipeline::train_settings::TaskArg;
 
@@ -50,6 +51,17 @@ pub struct ImitateArgs {
     /// each state the better-rated of the run's actor and its proposal is the teacher.
     #[arg(long, value_name = "SEED_DIR")]
     teacher_pair: Option<std::path::PathBuf>,
+    /// Success-filtered self-imitation: this policy file's episodes (of the task), with the DART
+    /// noise (`--arm-noise`, `--finger-noise`) on its executed actions, kept when they succeed,
+    /// join round 0's data labelled with the executed actions (docs/imitation.md).
+    #[arg(long, value_name = "POLICY")]
+    self_imitation: Option<std::path::PathBuf>,
+    /// Episodes the self-imitation tries.
+    #[arg(long, default_value_t = 1000, requires = "self_imitation")]
+    self_imitation_episodes: u32,
+    /// Times each self-imitation row counts in the cloning data.
+    #[arg(long, default_value_t = 1, requires = "self_imitation")]
+    self_imitation_repeat: u32,
     /// Close bursts in the DART episodes: the probability per step of holding the executed
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
@@ -168,6 +180,15 @@ impl ImitateArgs {
         }
         if let Some(v) = self.select_episodes {
             c.select_episodes = v;
+        }
+        if let Some(p) = &self.self_imitation {
+            c.self_imitation = Some(SelfImitation {
+                policy: p.clone(),
+                episodes: self.self_imitation_episodes,
+                arm_noise: c.arm_noise,
+                finger_noise: c.finger_noise,
+                repeat: self.self_imitation_repeat,
+            });
         }
         c.validate()?;
         Ok(c)
