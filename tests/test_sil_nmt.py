@@ -17,8 +17,12 @@ def test_preoperational_heartbeat_period_and_safe_actions(sim):
         hb = hb[2:]
     # The window can end between a heartbeat and the status TPDO written with it (a loaded
     # runner parts the client's reads): a last heartbeat without its status is the window's cut.
+    # It can also begin between them (the status TPDO wins arbitration and is on the wire first:
+    # the window opened after it, seen on CI in session 26): so is a first one without it.
     if hb and "state" not in hb[-1][1]:
         hb = hb[:-1]
+    if hb and "state" not in hb[0][1]:
+        hb = hb[1:]
     # 1.3 s at one heartbeat per 500 ms: two or three (an empty list would pass every all() below).
     assert 2 <= len(hb) <= 3, hb
     assert all(d["nmt_state"] == PREOP and d["state"] == 1 and d["fault_code"] == 0 for _, d in hb), hb
