@@ -211,7 +211,7 @@ fn main() -> anyhow::Result<()> {
         &states,
         &states.iter().map(|s| &s.rated[0][..]).collect::<Vec<_>>(),
         &quartiles,
-    );
+    )?;
     println!("{own:?}");
 
     let n = cfg.ddpg.batch_size;
@@ -322,7 +322,7 @@ fn main() -> anyhow::Result<()> {
                     })
                     .collect::<anyhow::Result<_>>()?;
                 let r: Vec<&[f32]> = rated.iter().map(|v| &v[..]).collect();
-                let st = rate(variant, &states, &r, &quartiles);
+                let st = rate(variant, &states, &r, &quartiles)?;
                 println!(
                     "{variant} after {} updates ({:.0} s): loss {:.4}, agreement {:.3} by gap {:.2?}, best {:.3} (chance {:.3}), within-state r {:.3}",
                     u + 1,

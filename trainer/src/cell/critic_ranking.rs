@@ -45,6 +45,10 @@ pub enum CriticRankingError {
     /// A network could not be run.
     #[error(transparent)]
     Learn(#[from] LearnError),
+    /// Values given to [`rate`] do not match the states: one slice per state, one value per
+    /// candidate.
+    #[error("rated values: {0}")]
+    RatedShape(String),
 }
 
 /// What to measure.
@@ -499,14 +503,44 @@ fn argmax<T: PartialOrd + Copy>(v: &[T]) -> usize {
 
 fn rater_stats(name: &str, r: usize, states: &[StateRanking], quartiles: &[f64; 3]) -> RaterStats {
     let rated: Vec<&[f32]> = states.iter().map(|st| &st.rated[r][..]).collect();
-    rate(name, states, &rated, quartiles)
+    rate_matched(name, states, &rated, quartiles)
 }
 
 /// How the values `rated[i]` (one per candidate of `states[i]`) order the candidates, against the
 /// true order: the statistics of [`RankingReport::stats`] for a rater that is not the run's own
 /// (a critic trained apart and rated on a report's states; `quartiles` from
-/// [`RankingReport::gap_quartiles`]). `rated` holds one slice per state, as long as its candidates.
+/// [`RankingReport::gap_quartiles`]). `rated` holds one slice per state, as long as its
+/// candidates; other shapes are refused.
 pub fn rate(
+    name: &str,
+    states: &[StateRanking],
+    rated: &[&[f32]],
+    quartiles: &[f64; 3],
+) -> Result<RaterStats, CriticRankingError> {
+    if rated.len() != states.len() {
+        return Err(CriticRankingError::RatedShape(format!(
+            "{} slices for {} states",
+            rated.len(),
+            states.len()
+        )));
+    }
+    if let Some((i, (st, r))) = states
+        .iter()
+        .zip(rated)
+        .enumerate()
+        .find(|(_, (st, r))| r.len() != st.true_q.len())
+    {
+        return Err(CriticRankingError::RatedShape(format!(
+            "state {i} has {} candidates and {} values",
+            st.true_q.len(),
+            r.len()
+        )));
+    }
+    Ok(rate_matched(name, states, rated, quartiles))
+}
+
+/// [`rate`] on values whose shape matches the states.
+fn rate_matched(
     name: &str,
     states: &[StateRanking],
     rated: &[&[f32]],
@@ -617,6 +651,24 @@ mod tests {
         // Only the first state has a gap; its best-rated candidate (1) is not its best (2).
         assert_eq!(s.best_match, 0.0);
         assert!((s.best_chance - 1.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rate_refuses_values_that_do_not_match_the_states() {
+        let states = [state(vec![0.0, 1.0], vec![0.0, 1.0])];
+        let q = [0.1, 0.2, 0.3];
+        let ok = rate("x", &states, &[&[0.0, 1.0]], &q).unwrap();
+        assert_eq!(ok.agreement, 1.0);
+        for bad in [
+            &[][..],
+            &[&[0.0f32][..]][..],
+            &[&[0.0, 1.0][..], &[0.0, 1.0][..]][..],
+        ] {
+            assert!(matches!(
+                rate("x", &states, bad, &q),
+                Err(CriticRankingError::RatedShape(_))
+            ));
+        }
     }
 
     #[test]
