@@ -558,10 +558,15 @@ impl Envelope {
             let after = q[j] + d_after[j];
             let stopped = after + brake;
             if cfg.joint_limited[j] {
-                let over_now = (q[j] - cfg.joint_max[j]).max(0.0);
-                let under_now = (cfg.joint_min[j] - q[j]).max(0.0);
+                // A joint already at or past a limit may not move further out at all: a sign
+                // test, because a motion below the angle's rounding leaves `q + w dt` unchanged.
+                let past_max = q[j] >= cfg.joint_max[j];
+                let past_min = q[j] <= cfg.joint_min[j];
+                if (past_max && w > 0.0) || (past_min && w < 0.0) {
+                    bits |= status::JOINT_LIMIT;
+                }
                 for x in [after, stopped] {
-                    if x - cfg.joint_max[j] > over_now || cfg.joint_min[j] - x > under_now {
+                    if (!past_max && x > cfg.joint_max[j]) || (!past_min && x < cfg.joint_min[j]) {
                         bits |= status::JOINT_LIMIT;
                     }
                 }

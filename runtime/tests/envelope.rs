@@ -256,3 +256,25 @@ proptest! {
         }
     }
 }
+
+/// Found by the property below (session 26): joint 3 at 0 rad, which unwraps to 2 pi, beyond its
+/// upper limit, and a command turned by the acceleration limit into a tiny positive velocity.
+/// A motion below the angle's rounding must still count as a motion past the limit.
+#[test]
+fn a_joint_past_its_limit_is_not_pushed_further_by_a_motion_below_rounding() {
+    let q = [0.0, 0.0, 0.0, -1.316_159_7, 0.0, 0.0];
+    let v = [0.0, 0.0, 0.057_858_4, 0.0, 0.0, 2.835_613_7];
+    let u0 = [0.0, 0.0, -0.516_425_67, 0.0, 0.0, -0.611_847_5];
+    let u: [f32; 6] = core::array::from_fn(|j| u0[j] * ACTION_JOINTS[j].max);
+    let o = obs(&q, &v);
+    let mut a = action(u);
+    envelope().apply(&o, &mut a);
+    let (qq, _) = envelope().arm_state(&o);
+    let cfg = EnvelopeConfig::jaco();
+    assert!(qq[2] >= cfg.joint_max[2]);
+    assert!(
+        a[2] <= 0.0,
+        "joint 3 pushed further past its limit: {}",
+        a[2]
+    );
+}
