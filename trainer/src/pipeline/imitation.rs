@@ -28,6 +28,7 @@ use crate::files::demos::{
 use crate::learn::EvalRecord;
 use crate::learn::bc::BcConfig;
 use crate::pipeline::cloning::{CloneError, clone_repeated_to_policy_file};
+use crate::pipeline::rollout_teacher::{ROLLOUT_DEMOS, RolloutTeacher};
 use crate::pipeline::self_imitation::{SELF_DEMOS, SelfImitation, executed_labels};
 
 // Start seed of the per-round selection evaluation (`env::seeds::SELECTION_SEED`, checkpoint
@@ -86,6 +87,10 @@ pub struct ImitationConfig {
     /// episodes join round 0's data, labelled with their executed actions. None: off.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub self_imitation: Option<SelfImitation>,
+    /// A rollout teacher ([`RolloutTeacher`]): the winning branches of a policy file's failed
+    /// episodes join round 0's data. None: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rollout_teacher: Option<RolloutTeacher>,
     /// Behaviour cloning settings (its seed is the run's seed).
     pub bc: BcConfig,
     /// Selection starts per round (0: keep the last round).
@@ -122,6 +127,7 @@ impl Default for ImitationConfig {
             teacher_policies: Vec::new(),
             teacher_pair: None,
             self_imitation: None,
+            rollout_teacher: None,
             bc: BcConfig {
                 steps: 30_000,
                 features: true,
@@ -209,6 +215,9 @@ impl ImitationConfig {
         }
         if let Some(si) = &self.self_imitation {
             si.validate()?;
+        }
+        if let Some(rt) = &self.rollout_teacher {
+            rt.validate()?;
         }
         self.bc
             .validate()
@@ -416,6 +425,9 @@ pub fn run_imitation(
     if let Some(si) = &cfg.self_imitation {
         si.policy(cfg.task)?;
     }
+    if let Some(rt) = &cfg.rollout_teacher {
+        rt.policy_file(cfg.task)?;
+    }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     // Held until the run ends: a second run in this folder is refused at once.
     let _lock = crate::pipeline::run_lock::RunLock::acquire(dir)?;
@@ -495,6 +507,19 @@ pub fn run_imitation(
             env_steps += set.header.env_steps;
             tried += u64::from(set.header.tried);
             sets.push((executed_labels(set), si.repeat));
+        }
+        if let (0, Some(rt)) = (round, &cfg.rollout_teacher) {
+            let path = dir.join(ROLLOUT_DEMOS);
+            if !path.exists() {
+                on_event(ImitationEvent::Recording {
+                    round,
+                    episodes: rt.episodes,
+                });
+            }
+            let set = rt.load_or_label(scene, cfg.task, cfg.seed, cfg.eval_threads, &path)?;
+            env_steps += set.header.env_steps;
+            tried += u64::from(set.header.tried);
+            sets.push((set, rt.repeat));
         }
         let file =
             if policy_path.exists() && records.iter().any(|r| r.eval_index == u64::from(round)) {

@@ -11,6 +11,8 @@
 //!   network (members, their seeds from the pipeline seed, the distillation's settings).
 //! - [`self_imitation`]: a policy file's successful noisy episodes as cloning data labelled with
 //!   their executed actions (`trainer imitate --self-imitation`).
+//! - [`rollout_teacher`]: the winning branches of a policy file's failed episodes, found by
+//!   rollouts from simulator snapshots, as cloning data (`trainer imitate --rollout-teacher`).
 //! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
 //! - [`run_plots`]: a run folder's learning curves, drawn by [`plot`] (mean and min-max band over
 //!   seeds, like the paper's figures).
@@ -19,6 +21,7 @@ pub mod clone_members;
 pub mod cloning;
 pub mod imitation;
 pub mod plot;
+pub mod rollout_teacher;
 pub mod run_lock;
 pub mod run_plots;
 pub mod self_imitation;

@@ -9,6 +9,7 @@ use indicatif::ProgressBar;
 use dex_trainer::env::seeds::EVAL_SEED;
 use dex_trainer::evaluate::{EvalSettings, evaluate_policy_file};
 use dex_trainer::pipeline::imitation::{ImitationConfig, ImitationEvent, run_imitation};
+use dex_trainer::pipeline::rollout_teacher::RolloutTeacher;
 use dex_trainer::pipeline::self_imitation::SelfImitation;
 
 use dex_trainer::pipeline::train_settings::TaskArg;
@@ -62,6 +63,23 @@ pub struct ImitateArgs {
     /// Times each self-imitation row counts in the cloning data.
     #[arg(long, default_value_t = 1, requires = "self_imitation")]
     self_imitation_repeat: u32,
+    /// A rollout teacher: this policy file's (of the task) clean episodes from training starts;
+    /// at branch points of the failed ones, noisy branches are rolled out from simulator
+    /// snapshots, and the winning branches' actions join round 0's data (docs/imitation.md).
+    #[arg(long, value_name = "POLICY")]
+    rollout_teacher: Option<std::path::PathBuf>,
+    /// Episodes the rollout teacher tries (the failed ones are branched; default 1000).
+    #[arg(long, requires = "rollout_teacher")]
+    rollout_episodes: Option<u32>,
+    /// Branch points every this many steps of a failed episode (default 5).
+    #[arg(long, requires = "rollout_teacher")]
+    rollout_stride: Option<u32>,
+    /// Noisy branches per branch point (default 8).
+    #[arg(long, requires = "rollout_teacher")]
+    rollout_candidates: Option<u32>,
+    /// Times each labelled row counts in the cloning data (default 10).
+    #[arg(long, requires = "rollout_teacher")]
+    rollout_repeat: Option<u32>,
     /// Close bursts in the DART episodes: the probability per step of holding the executed
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
@@ -189,6 +207,14 @@ impl ImitateArgs {
                 finger_noise: c.finger_noise,
                 repeat: self.self_imitation_repeat,
             });
+        }
+        if let Some(p) = &self.rollout_teacher {
+            let mut rt = RolloutTeacher::new(p.clone());
+            rt.episodes = self.rollout_episodes.unwrap_or(rt.episodes);
+            rt.stride = self.rollout_stride.unwrap_or(rt.stride);
+            rt.candidates = self.rollout_candidates.unwrap_or(rt.candidates);
+            rt.repeat = self.rollout_repeat.unwrap_or(rt.repeat);
+            c.rollout_teacher = Some(rt);
         }
         c.validate()?;
         Ok(c)
