@@ -10,14 +10,14 @@
 #
 # Checks, each against the host controller node (`hil-sim bus --lockstep --controller`) given the
 # same frames:
-#   1. the policy (the trained Reach policy trainer/tests/fixtures/reach_int8_seed0.dxpl quantised
-#      to int8 by `policy quantise`: 25 kB; policies/grasp.dxpl, 334 kB, exceeds the firmware's
-#      32 KiB RAM slots, see docs/firmware.md) is flashed over the bus into the firmware's slot
+#   1. the policy (policies/grasp-128.dxpl, the shipped 58-128-128-9 Grasp network, quantised to
+#      int8 by `policy quantise`: 29 kB, inside the firmware's 32 KiB RAM slots; policies/grasp.dxpl,
+#      334 kB, is not, see docs/firmware.md) is flashed over the bus into the firmware's slot
 #      (`hil-sim flash`: CANopen program download through the bridge), not built in;
 #   2. a second flash (runtime/tests/golden/jaco_64.dxpl) cut on the wire after 2 s: the firmware
 #      keeps the first policy (one COMMIT in its log, and step 3's actions) and its SDO server
 #      aborts the stale transfer (0x0504_0000) once bus time passes the SDO timeout;
-#   3. N lockstep episodes of the MuJoCo Reach task from `trainer eval`'s starts: every applied
+#   3. N lockstep episodes of the MuJoCo Grasp task from `trainer eval`'s starts: every applied
 #      action (`hil-sim plant --actions`) identical to the host node's, the same returns and success;
 #      with FIRMWARE_SIL_TRAINER=1 (scripts/test.sh) also identical to `trainer eval --envelope
 #      --actions` for the same starts (the runtime's evaluator without a bus);
@@ -43,7 +43,7 @@ ROOT=$(cd "$(dirname "$0")/.." && pwd)
 FW="$ROOT/firmware"
 TARGET=thumbv7em-none-eabihf
 EPISODES=${FIRMWARE_SIL_EPISODES:-3}
-TASK=reach
+TASK=grasp
 
 die() {
     echo "firmware-sil: FAIL: $*" >&2
@@ -95,11 +95,11 @@ done
 HS="$W/hil-sim"
 POLICY_TOOL="$W/policy"
 
-POLICY="$W/reach_int8.dxpl"
-"$POLICY_TOOL" quantise "$ROOT/trainer/tests/fixtures/reach_int8_seed0.dxpl" "$POLICY" >/dev/null ||
+POLICY="$W/grasp_128_int8.dxpl"
+"$POLICY_TOOL" quantise "$ROOT/policies/grasp-128.dxpl" "$POLICY" >/dev/null ||
     die "policy quantise failed"
 CUT_POLICY="$ROOT/runtime/tests/golden/jaco_64.dxpl"
-echo "   policy $(stat -c %s "$POLICY") B (Reach, int8), cut transfer of $(stat -c %s "$CUT_POLICY") B"
+echo "   policy $(stat -c %s "$POLICY") B (Grasp 58-128-128-9, int8), cut transfer of $(stat -c %s "$CUT_POLICY") B"
 
 # --- processes -----------------------------------------------------------------------------------
 pids=()

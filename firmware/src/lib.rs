@@ -3,8 +3,9 @@
 //! The policy file and an observation trace are embedded at build time (`build.rs`: `DEX_POLICY`,
 //! `DEX_TRACE`). [`run`] decodes and validates the policy, then replays the trace twice:
 //!
-//! 1. through the evaluator alone ([`Mlp::act`]): one `A` line per step with the action's f32 bits,
-//!    which must equal the host's goldens (`runtime/tests/golden/actions_64.f32`);
+//! 1. through the evaluator alone ([`Mlp::act`]; a file that takes the task features gets them
+//!    after the observation, as the controller gives them): one `A` line per step with the
+//!    action's f32 bits, which must equal the host's goldens (`runtime/tests/golden/actions_64.f32`);
 //! 2. through the full [`Controller`]: NMT start, then per step one control period of the mock
 //!    clock and the observation as end-to-end-protected CAN frames; one `C` line per step with the
 //!    controller's action bits and the action frames it sent (the controller runs its safety
@@ -293,7 +294,14 @@ fn replay_evaluator(
     for step in 0..steps {
         let obs = observation(&TRACE.0, step).ok_or(Fault::Trace { len: TRACE.0.len() })?;
         let mut action = [0.0f32; ACT_DIM];
-        let (result, n) = p.measure(|| mlp.act(&obs, &mut action));
+        // A policy that takes the task features gets them after the observation, as the
+        // controller gives them (counted in the step: they are part of what it computes).
+        let mut input = [0.0f32; dex_runtime::features::INPUT_MAX];
+        let inputs = mlp.obs_dim();
+        let (result, n) = p.measure(|| {
+            let x = dex_runtime::features::policy_input(&obs, inputs, &mut input);
+            mlp.act(x, &mut action)
+        });
         result.map_err(|error| Fault::Eval { step, error })?;
         stats.add(n.map(|v| v.saturating_sub(overhead)));
         p.line(format_args!("A {step} {}", Bits(&action)));

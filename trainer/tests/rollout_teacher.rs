@@ -17,12 +17,14 @@ fn grasp_clone() -> std::path::PathBuf {
     ))
 }
 
-/// Small settings: branch points 20 steps apart, four branches of two replicates.
+/// Small settings: branch points 20 steps apart, four branches of two replicates, noise 0.3.
 fn small(episodes: u32) -> RolloutTeacher {
     RolloutTeacher {
         episodes,
         stride: 20,
         candidates: 4,
+        arm_noise: 0.3,
+        finger_noise: 0.3,
         ..RolloutTeacher::new(grasp_clone())
     }
 }
@@ -171,7 +173,12 @@ fn a_run_with_a_rollout_teacher_labels_once_and_refuses_what_does_not_fit() {
             ..rt.clone()
         },
         RolloutTeacher {
-            noise: f32::NAN,
+            arm_noise: f32::NAN,
+            ..rt.clone()
+        },
+        RolloutTeacher {
+            arm_noise: 0.0,
+            finger_noise: 0.0,
             ..rt.clone()
         },
         RolloutTeacher {
@@ -191,4 +198,3 @@ fn a_run_with_a_rollout_teacher_labels_once_and_refuses_what_does_not_fit() {
         assert!(!dir.exists(), "refused before the folder is made");
     }
 }
-

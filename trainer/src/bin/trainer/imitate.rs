@@ -77,9 +77,15 @@ pub struct ImitateArgs {
     /// Noisy branches per branch point (default 8).
     #[arg(long, requires = "rollout_teacher")]
     rollout_candidates: Option<u32>,
-    /// Times each labelled row counts in the cloning data (default 10).
+    /// Times each labelled row counts in the cloning data (default 1).
     #[arg(long, requires = "rollout_teacher")]
     rollout_repeat: Option<u32>,
+    /// Noise of the rollout teacher's branches on the arm's actions (default 0.1).
+    #[arg(long, requires = "rollout_teacher")]
+    rollout_arm_noise: Option<f32>,
+    /// Noise of the rollout teacher's branches on the fingers' actions (default 0.05).
+    #[arg(long, requires = "rollout_teacher")]
+    rollout_finger_noise: Option<f32>,
     /// Close bursts in the DART episodes: the probability per step of holding the executed
     /// finger actions fully closing for 3-8 steps (0: none, at most 0.5).
     #[arg(long)]
@@ -214,6 +220,8 @@ impl ImitateArgs {
             rt.stride = self.rollout_stride.unwrap_or(rt.stride);
             rt.candidates = self.rollout_candidates.unwrap_or(rt.candidates);
             rt.repeat = self.rollout_repeat.unwrap_or(rt.repeat);
+            rt.arm_noise = self.rollout_arm_noise.unwrap_or(rt.arm_noise);
+            rt.finger_noise = self.rollout_finger_noise.unwrap_or(rt.finger_noise);
             c.rollout_teacher = Some(rt);
         }
         c.validate()?;
