@@ -7,8 +7,6 @@
 //! policy files on them ([`action_error`]); `cargo run --release -p dex-trainer --example
 //! int8_compare` runs the whole comparison.
 
-use std::sync::atomic::{AtomicU32, Ordering};
-
 use dex_policy::PolicyView;
 use dex_runtime::Mlp;
 use dex_runtime::can::messages::{quantise_action, quantise_observation};
@@ -420,38 +418,13 @@ fn outcomes_in_order<S>(
     if settings.episodes == 0 {
         return Err(EvalError::NoEpisodes);
     }
-    let next = AtomicU32::new(0);
-    let threads = settings.threads.clamp(1, settings.episodes as usize);
-    type Outcomes = Vec<(u32, (f64, bool))>;
-    let results: Vec<Result<Outcomes, EvalError>> = std::thread::scope(|s| {
-        let handles: Vec<_> = (0..threads)
-            .map(|_| {
-                s.spawn(|| {
-                    let mut state = init()?;
-                    let mut out = Vec::new();
-                    loop {
-                        let i = next.fetch_add(1, Ordering::Relaxed);
-                        if i >= settings.episodes {
-                            return Ok(out);
-                        }
-                        let seed = episode_seed(settings.seed, u64::from(i));
-                        out.push((i, run(&mut state, seed)?));
-                        on_episode();
-                    }
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
-            .collect()
-    });
-    let mut all = Vec::with_capacity(settings.episodes as usize);
-    for r in results {
-        all.extend(r?);
-    }
-    all.sort_by_key(|&(i, _)| i);
-    Ok(all.into_iter().map(|(_, o)| o).collect())
+    crate::parallel::map_in_order(
+        settings.episodes as usize,
+        settings.threads,
+        init,
+        |state, i| run(state, episode_seed(settings.seed, i as u64)),
+        on_episode,
+    )
 }
 
 /// Every observation of `episodes` episodes driven by the policy `file` through the runtime (no CAN

@@ -15,7 +15,8 @@
 //!   states along demonstrations ([`start_states`]).
 //! - [`evaluate`]: the success rate of a policy file run through the `dex-runtime` evaluator (the
 //!   code a controller runs) on these tasks; [`seeds`]: each episode's start seed and the named seed
-//!   ranges of the evaluations.
+//!   ranges of the evaluations; [`parallel`]: independent items on several threads, results in
+//!   item order.
 //!
 //! Not here: rendering, the learner, and the real robot's CAN side.
 
@@ -28,6 +29,7 @@ pub mod kinematics;
 pub mod markov_demo;
 pub mod observation;
 pub mod paired;
+pub mod parallel;
 pub mod random_start;
 pub mod rewards;
 pub mod rng;

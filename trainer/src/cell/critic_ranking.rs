@@ -251,35 +251,13 @@ impl RankedRun {
         on_state: &(dyn Fn() + Sync),
     ) -> Result<RankingReport, CriticRankingError> {
         s.validate()?;
-        let threads = s.threads.clamp(1, s.states as usize);
-        type Measured = Vec<(usize, StateRanking)>;
-        let results: Vec<Result<Measured, CriticRankingError>> = std::thread::scope(|sc| {
-            let handles: Vec<_> = (0..threads)
-                .map(|k| {
-                    sc.spawn(move || {
-                        let mut env = JacoEnv::new(scene, self.env);
-                        (k..s.states as usize)
-                            .step_by(threads)
-                            .map(|i| {
-                                let r = self.one_state(&mut env, s, i as u64);
-                                on_state();
-                                r.map(|r| (i, r))
-                            })
-                            .collect()
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
-                .collect()
-        });
-        let mut measured = Vec::with_capacity(s.states as usize);
-        for r in results {
-            measured.extend(r?);
-        }
-        measured.sort_by_key(|&(i, _)| i);
-        let per_state = measured.into_iter().map(|(_, r)| r).collect();
+        let per_state = crate::env::parallel::map_in_order(
+            s.states as usize,
+            s.threads,
+            || Ok(JacoEnv::new(scene, self.env)),
+            |env, i| self.one_state(env, s, i as u64),
+            on_state,
+        )?;
         Ok(self.report(s, per_state))
     }
 

@@ -162,39 +162,21 @@ impl RolloutTeacher {
         self.validate()?;
         let file = self.policy_file(task)?;
         let aligned = dex_runtime::aligned::aligned_copy(&file);
-        let threads = threads.clamp(1, self.episodes as usize);
         let seed = self.seed(run_seed);
-        let results: Vec<Result<Vec<(u32, Labelled)>, ImitationError>> = std::thread::scope(|sc| {
-            let handles: Vec<_> = (0..threads)
-                .map(|k| {
-                    let aligned = &aligned;
-                    sc.spawn(move || -> Result<Vec<(u32, Labelled)>, ImitationError> {
-                        let view = crate::evaluate::decode_jaco_policy(aligned.as_bytes())?;
-                        let mut mlp = Mlp::<EVAL_WIDTH>::new(&view).map_err(EvalError::from)?;
-                        let mut env = JacoEnv::new(scene, EnvConfig::new(task));
-                        let mut out = Vec::new();
-                        for i in (k..self.episodes as usize).step_by(threads) {
-                            let s = episode_seed(seed, i as u64);
-                            out.push((i as u32, self.one_episode(&mut env, &mut mlp, s)?));
-                            on_episode();
-                        }
-                        Ok(out)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
-                .collect()
-        });
-        let mut episodes = Vec::with_capacity(self.episodes as usize);
-        for r in results {
-            episodes.extend(r?);
-        }
-        episodes.sort_by_key(|&(i, _)| i);
+        let episodes = crate::env::parallel::map_in_order(
+            self.episodes as usize,
+            threads,
+            || -> Result<_, ImitationError> {
+                let view = crate::evaluate::decode_jaco_policy(aligned.as_bytes())?;
+                let mlp = Mlp::<EVAL_WIDTH>::new(&view).map_err(EvalError::from)?;
+                Ok((mlp, JacoEnv::new(scene, EnvConfig::new(task))))
+            },
+            |(mlp, env), i| self.one_episode(env, mlp, episode_seed(seed, i as u64)),
+            on_episode,
+        )?;
         let (mut successes, mut stored, mut env_steps) = (0u32, 0u32, 0u64);
         let mut rows = Vec::new();
-        for (_, e) in episodes {
+        for e in episodes {
             successes += u32::from(e.success);
             env_steps += e.env_steps;
             stored += e.segments;
