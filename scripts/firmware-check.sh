@@ -4,7 +4,7 @@
 # budget. Exits non-zero, loudly, on any mismatch, fault or missing tool. See docs/firmware.md.
 #
 #   scripts/firmware-check.sh            # everything (about 1 min warm, 3 min cold)
-#   FIRMWARE_EXTRA_POLICY=path.dxpl scripts/firmware-check.sh   # also a trained policy, bit for bit
+#   FIRMWARE_EXTRA_POLICY=path.dxpl scripts/firmware-check.sh   # also a trained policy, bit for bit, and its instructions per step
 #   FIRMWARE_BLESS=1 scripts/firmware-check.sh   # rewrite firmware/budget.txt from this run
 #   FIRMWARE_QUICK=1 scripts/firmware-check.sh   # case 1's f32 golden only (scripts/test.sh runs it
 #                                                # with another CARGO_TARGET_DIR: the build paths)
@@ -402,6 +402,9 @@ if [ -n "${FIRMWARE_EXTRA_POLICY:-}" ]; then
     step "extra policy $FIRMWARE_EXTRA_POLICY on mps2-an386"
     extra=$(cd "$ROOT" && realpath "$FIRMWARE_EXTRA_POLICY")
     run_policy extra "$extra" "extra policy"
+    # Its instructions per step (the worst step of the golden trace; a file that takes the task
+    # features computes them in the `mlp` count, as the controller does).
+    grep -E '^(I|S peak) ' "$WORK/extra.log" | sed 's/^/   /'
 fi
 
 # --- 4. corrupted policy: the fault state ---------------------------------------------------------

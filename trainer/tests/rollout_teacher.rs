@@ -153,6 +153,15 @@ fn a_run_with_a_rollout_teacher_labels_once_and_refuses_what_does_not_fit() {
         .unwrap_err();
     assert!(e.to_string().contains("other settings"), "{e}");
     assert!(path.exists());
+    // Another repeat only weighs the same labels differently: the file is read, not relabelled.
+    let reweighted = RolloutTeacher {
+        repeat: rt.repeat + 1,
+        ..rt.clone()
+    };
+    let same = reweighted
+        .load_or_label(&scene, Task::Grasp, 0, 1, &path)
+        .unwrap();
+    assert_eq!(same.rows.len(), set.rows.len());
     std::fs::remove_dir_all(&dir).ok();
     // A Grasp policy cannot teach a Reach run: refused before the folder is made.
     let reach = ImitationConfig {

@@ -410,6 +410,42 @@ pub fn check_run_folder(cfg: &ImitationConfig, dir: &Path) -> Result<bool, Imita
     }
 }
 
+/// One of round 0's extra sets: its file in the run folder, the episodes it tries, the times its
+/// rows count, and how it is read back (or made, the first time) at a path.
+type ExtraSet<'a> = (
+    &'static str,
+    u32,
+    u32,
+    Box<dyn Fn(&Path) -> Result<DemoSet, ImitationError> + 'a>,
+);
+
+/// Round 0's extra sets beyond the recordings: self-imitation (cloned with its executed actions)
+/// and the rollout teacher's labels.
+fn extra_sets<'a>(scene: &'a Scene, cfg: &'a ImitationConfig) -> Vec<ExtraSet<'a>> {
+    let mut extras: Vec<ExtraSet<'a>> = Vec::new();
+    if let Some(si) = &cfg.self_imitation {
+        extras.push((
+            SELF_DEMOS,
+            si.episodes,
+            si.repeat,
+            Box::new(move |p| {
+                Ok(executed_labels(
+                    si.load_or_record(scene, cfg.task, cfg.seed, p)?,
+                ))
+            }),
+        ));
+    }
+    if let Some(rt) = &cfg.rollout_teacher {
+        extras.push((
+            ROLLOUT_DEMOS,
+            rt.episodes,
+            rt.repeat,
+            Box::new(move |p| rt.load_or_label(scene, cfg.task, cfg.seed, cfg.eval_threads, p)),
+        ));
+    }
+    extras
+}
+
 /// Runs (or resumes) an imitation run in `dir`.
 pub fn run_imitation(
     scene: &Scene,
@@ -495,31 +531,17 @@ pub fn run_imitation(
             tried += u64::from(set.header.tried);
             sets.push((set, if round > 0 { cfg.dagger_repeat } else { 1 }));
         }
-        if let (0, Some(si)) = (round, &cfg.self_imitation) {
-            let path = dir.join(SELF_DEMOS);
-            if !path.exists() {
-                on_event(ImitationEvent::Recording {
-                    round,
-                    episodes: si.episodes,
-                });
+        if round == 0 {
+            for (name, episodes, repeat, load) in extra_sets(scene, cfg) {
+                let path = dir.join(name);
+                if !path.exists() {
+                    on_event(ImitationEvent::Recording { round, episodes });
+                }
+                let set = load(&path)?;
+                env_steps += set.header.env_steps;
+                tried += u64::from(set.header.tried);
+                sets.push((set, repeat));
             }
-            let set = si.load_or_record(scene, cfg.task, cfg.seed, &path)?;
-            env_steps += set.header.env_steps;
-            tried += u64::from(set.header.tried);
-            sets.push((executed_labels(set), si.repeat));
-        }
-        if let (0, Some(rt)) = (round, &cfg.rollout_teacher) {
-            let path = dir.join(ROLLOUT_DEMOS);
-            if !path.exists() {
-                on_event(ImitationEvent::Recording {
-                    round,
-                    episodes: rt.episodes,
-                });
-            }
-            let set = rt.load_or_label(scene, cfg.task, cfg.seed, cfg.eval_threads, &path)?;
-            env_steps += set.header.env_steps;
-            tried += u64::from(set.header.tried);
-            sets.push((set, rt.repeat));
         }
         let file =
             if policy_path.exists() && records.iter().any(|r| r.eval_index == u64::from(round)) {

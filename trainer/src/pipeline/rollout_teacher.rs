@@ -140,13 +140,14 @@ impl RolloutTeacher {
         Ok(bytes)
     }
 
-    /// What the file's header says it was made from (the settings, as JSON): a resumed run
-    /// checks it.
+    /// What the file's header says it was made from (the settings as JSON, less `repeat`, which
+    /// only the cloning reads): a resumed run checks it, and a new repeat reuses the labels.
     fn source(&self) -> String {
-        format!(
-            "rollout teacher {}",
-            serde_json::to_string(self).unwrap_or_default()
-        )
+        let mut v = serde_json::to_value(self).unwrap_or_default();
+        if let Some(m) = v.as_object_mut() {
+            m.remove("repeat");
+        }
+        format!("rollout teacher {v}")
     }
 
     /// Runs the episodes and labels the winning branches of the failed ones on `threads`
