@@ -5,7 +5,9 @@
 //! brick, modulo the brick's half-turn symmetry, from six joint sines and cosines and a
 //! quaternion; its failures spin the wrist without stopping at the brick's yaw (docs/imitation.md).
 //! These features hand it those quantities: the pinch site's pose comes from
-//! [`crate::kinematics::pinch_pose`] (the same bits on every target), angles from `libm`.
+//! [`crate::kinematics::pinch_pose`] (the same bits on every target), sines and cosines from the
+//! f32 [`crate::kinematics::sin_cos`] (`libm`'s `sinf`/`cosf` compute in f64, which the
+//! Cortex-M4F runs in software: about 27,000 instructions per step), arc tangents from `libm`.
 //!
 //! A policy file takes them when its observation fields are the controller's
 //! ([`crate::interface::OBSERVATION_FIELDS`]) followed by [`FEATURE_FIELDS`]; [`check_layout`]
@@ -19,7 +21,7 @@ use dex_policy::{FormatError, PolicyView};
 use nalgebra::Vector3;
 
 use crate::interface::{ACTION_JOINTS, OBS_DIM, OBSERVATION_FIELDS};
-use crate::kinematics::{ARM_JOINTS, pinch_pose};
+use crate::kinematics::{ARM_JOINTS, pinch_pose, sin_cos};
 
 /// One named block of task features.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -139,8 +141,8 @@ fn quat_yaw(q: &[f32]) -> f32 {
 
 /// `sin 2d, cos 2d` of the angle `d` from yaw `from` to yaw `to`.
 fn half_turn_pair(to: f32, from: f32) -> [f32; 2] {
-    let d = 2.0 * (to - from);
-    [libm::sinf(d), libm::cosf(d)]
+    let (s, c) = sin_cos(2.0 * (to - from));
+    [s, c]
 }
 
 /// The task features of physical observation `obs` (units as [`crate::interface`] lists them),
@@ -151,6 +153,7 @@ pub fn task_features(obs: &[f32; OBS_DIM]) -> [f32; FEATURE_DIM] {
     let pose = pinch_pose(&q);
     let x = pose.rot * Vector3::x();
     let pinch_yaw = libm::atan2f(x[1], x[0]);
+    let (pinch_sin, pinch_cos) = sin_cos(pinch_yaw);
     let yaw1 = quat_yaw(&obs[BRICK1_QUAT..BRICK1_QUAT + 4]);
     let yaw2 = quat_yaw(&obs[BRICK2_QUAT..BRICK2_QUAT + 4]);
     let local = |at: usize| -> [f32; 3] {
@@ -165,20 +168,7 @@ pub fn task_features(obs: &[f32; OBS_DIM]) -> [f32; FEATURE_DIM] {
     let l1 = local(PINCH_TO_BRICK1);
     let l2 = local(PINCH_TO_BRICK2);
     [
-        libm::sinf(pinch_yaw),
-        libm::cosf(pinch_yaw),
-        s1,
-        c1,
-        s2,
-        c2,
-        s21,
-        c21,
-        l1[0],
-        l1[1],
-        l1[2],
-        l2[0],
-        l2[1],
-        l2[2],
+        pinch_sin, pinch_cos, s1, c1, s2, c2, s21, c21, l1[0], l1[1], l1[2], l2[0], l2[1], l2[2],
     ]
 }
 

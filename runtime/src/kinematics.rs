@@ -7,8 +7,8 @@
 //!
 //! Two evaluations of the same chain:
 //!
-//! - [`pinch_pose`]: position and orientation, with quaternions and one `libm` sine and cosine of
-//!   each half angle per call (the task features use it).
+//! - [`pinch_pose`]: position and orientation, with quaternions and one [`sin_cos`] of each half
+//!   angle per call (the task features use it).
 //! - [`pinch_position_trig`]: the position alone from each joint's sine and cosine
 //!   ([`JointTrig`]), with the links' constant rotations as 3x3 matrices folded from the end of
 //!   the chain towards its base: no trigonometry and ~200 f32 operations per call. The safety
@@ -67,7 +67,7 @@ pub fn pinch_pose(q: &[f32; ARM_JOINTS]) -> Pose {
         rot *= quat(&link.quat);
         if let Some(k) = link.joint {
             let half = q.get(k).copied().unwrap_or(0.0) * 0.5;
-            let (s, c) = (libm::sinf(half), libm::cosf(half));
+            let (s, c) = sin_cos(half);
             let a = link.axis;
             rot *= UnitQuaternion::new_unchecked(Quaternion::new(c, a[0] * s, a[1] * s, a[2] * s));
         }
@@ -133,7 +133,6 @@ const PIO2: [f32; 3] = [1.570_312_5, 4.837_513e-4, 7.549_79e-8];
 /// single-precision FPU emulates in software; this costs a few dozen instructions.
 pub fn sin_cos(x: f32) -> (f32, f32) {
     if x.is_nan() || libm::fabsf(x) > SIN_COS_RANGE {
-        // `sinf` and `cosf`, not `sincosf`: the task features link those two already.
         return (libm::sinf(x), libm::cosf(x));
     }
     let half = if x >= 0.0 { 0.5 } else { -0.5 };

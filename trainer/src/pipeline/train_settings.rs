@@ -389,14 +389,9 @@ pub struct TrainSettings {
     /// more of them with a McNemar p below 0.01; otherwise (a tie included) the starting policy's
     /// file is, so the reinforcement-learning stage ships only a file measurably better than the
     /// one it was given (`--guard-episodes`; 0: off, the selected policy is shipped).
-    #[serde(skip_serializing_if = "is_zero")]
     pub guard_episodes: u32,
     /// The learner.
     pub run: RunConfig,
-}
-
-fn is_zero(n: &u32) -> bool {
-    *n == 0
 }
 
 /// The clone stage of a pipeline run: `trainer imitate`'s recipe for the task
@@ -1013,6 +1008,19 @@ mod tests {
         t.remove("select_best_episodes");
         let old: TrainSettings = toml::from_str(&toml::to_string(&v).unwrap()).unwrap();
         assert_eq!(old, TrainSettings::default());
+    }
+
+    #[test]
+    fn every_setting_at_its_default_value_loads() {
+        // A key written at its default (here the guard off) is a known key, not an unknown one.
+        let dir = std::env::temp_dir().join(format!("dex-guard-zero-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.toml");
+        std::fs::write(&path, "guard_episodes = 0\n").unwrap();
+        assert_eq!(load(Some(&path)).unwrap().guard_episodes, 0);
+        std::fs::write(&path, "guard_episodes = 500\n").unwrap();
+        assert_eq!(load(Some(&path)).unwrap().guard_episodes, 500);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
