@@ -226,12 +226,12 @@ def test_bus_off_until_cleared_in_preoperational(sim):
     assert s.control("fault busoff 0") == "< ok >"
     off = collect(bus, 0.4)
     # The error frame, then silence. Frames of the cycle under way when the fault was injected
-    # may still reach the bus just after the error frame (node, bus and test are processes
-    # stamped by the wall clock; seen once on CI: three zero-action TPDOs a few ms after it), so
-    # "silence" starts half a period after the error frame.
+    # may reach the bus just before or just after the error frame (node, bus and test are
+    # processes stamped by the wall clock; seen on CI: three zero-action TPDOs a few ms after it,
+    # and on a loaded machine a status TPDO 7 ms before it), so "silence" starts half a period
+    # after the error frame and nothing is asked of the frames before it.
     assert [m.arbitration_id for _, m in off if m.is_error_frame] == [0x040], off
     t_err = next(t for t, m in off if m.is_error_frame)
-    assert all(t >= t_err for t, m in off if not m.is_error_frame), off
     assert not [(t, m) for t, m in off if not m.is_error_frame and t - t_err > PERIOD / 2], off
     assert s.diag()["bus_off"] == "true"
     assert s.control("fault clear") == "< ok >"
