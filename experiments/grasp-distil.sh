@@ -19,7 +19,9 @@
 # fine-tune and guard 5.3 min. Its guard tied (497 against 497 of 500 selection starts); since
 # session 24 a fine-tune ships only when it solves more with p < 0.01, so the guard, run again
 # under that rule, shipped the distilled file unchanged: OUT/seed-1/policy.dxpl is
-# policies/grasp.dxpl bit for bit.
+# policies/grasp.dxpl bit for bit. That was the runtime up to session 27 (commit 42422b5): since
+# session 28 the task features' f32 sines and cosines change the cloning data's last bits, so the
+# script makes a file of the same recipe, not this one bit for bit (policies/README.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/grasp-distil}

@@ -19,6 +19,9 @@
 # shipped it unchanged and OUT/seed-1/policy.dxpl is policies/stack.dxpl bit for bit too. Wall,
 # two at a time: members 1089 s (seeds 1-2), 604 s (3-4), 848 s (5-6), 584 s (7); distillation
 # 651 s (round 0) + 768 s (round 1); fine-tune and guard about 5 min: about 81 min in all.
+# That was the runtime up to session 27 (commit 42422b5): since session 28 the task features' f32
+# sines and cosines change the cloning data's last bits, so the script makes a file of the same
+# recipe, not this one bit for bit (policies/README.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-runs/stack-distil}

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # README command one: all set-up on a fresh machine, then the main job: learn Grasp (the imitation
 # learner: 600 episodes of the Markov demonstrator, 200 clean and 400 with DART noise, cloned into a
-# 44-256-256-9 policy; ~4 min on one core), export the policy file, evaluate the file through the
-# controller's runtime on 200 unseen starts, and show what is in it. Extra arguments go to
-# `trainer imitate` (e.g. --task stack-in-hand --seeds 0,1,2).
+# 58-256-256-9 policy that takes the controller's task features; 2-4 min), export the policy file,
+# evaluate the file through the controller's runtime on 200 unseen starts, and show what is in it.
+# Extra arguments go to `trainer imitate` (e.g. --task stack-in-hand --seeds 0,1,2).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 command -v cargo >/dev/null || { echo "error: cargo not found: install Rust with rustup" >&2; exit 1; }
