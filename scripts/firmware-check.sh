@@ -29,7 +29,9 @@
 #      of each joint's range, instructions, code flash and peak stack within budget. (Step 1 also checks
 #      the int8 golden.)
 #   7. a trained policy (trainer/tests/fixtures/reach_int8_seed0.dxpl, Reach, trained for int8) and its
-#      int8 twin (`policy quantise`): both equal to the host twin, int8 within 1% of the f32 actions.
+#      int8 twin (`policy quantise`): both equal to the host twin, int8 within 1% of the f32 actions;
+#      then policies/grasp-128-int8.dxpl (58 inputs: the task features on the target), equal to the
+#      host twin, its controller step within budget.
 #   8. A/B policy slots (feature `slots`): the golden policy in one of two static slots, the recorded
 #      flash of the int8 golden policy (runtime/tests/golden/flash_int8.frames, the frames of a real
 #      hil-sim flash) fed to the controller: every response as recorded, the inactive slot written and
@@ -357,6 +359,8 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "# slots_*: the A/B slot image of case 8 (golden 44-64-64-9 policy, --features slots): one control"
         echo "# period over a slot, the worst flash request (the end's verification of the 9.5 kB int8 file), code"
         echo "# flash less policy, trace and flash recording, static RAM (two 32 KiB + 32 B slots), peak stack."
+        echo "# grasp128_int8_controller_step: case 7's policies/grasp-128-int8.dxpl (58-128-128-9 int8, the task"
+        echo "# features computed on the target), the step behind the 5 ms loop (docs/benchmarks.md)."
         echo "# node_*: the CAN node (firmware/node, case 9): flash (.vector_table + .text + .rodata + .data) and"
         echo "# static RAM (.data + .bss + .uninit) of its QEMU build (SLCAN, RAM-backed NorFlash) and board build."
         echo "# Re-bless only on purpose: FIRMWARE_BLESS=1 scripts/firmware-check.sh (the slots_* lines alone:"
@@ -371,6 +375,7 @@ if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
         echo "int8_controller_step BLESS_PENDING"
         echo "int8_flash_code_bytes BLESS_PENDING"
         echo "int8_stack_bytes BLESS_PENDING"
+        echo "grasp128_int8_controller_step BLESS_PENDING"
         echo "slots_controller_step BLESS_PENDING"
         echo "slots_flash_request BLESS_PENDING"
         echo "slots_flash_code_bytes BLESS_PENDING"
@@ -463,6 +468,16 @@ for name in trained trained_int8; do
     grep -E '^(I|S peak) ' "$WORK/$name.log" | sed "s/^/   $name: /"
 done
 check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"
+# The Grasp file firmware-sil.sh flashes (58-128-128-9 int8, the task features computed on the
+# target): its controller step is what the 5 ms loop at 500 kbit/s rests on (docs/benchmarks.md).
+run_policy grasp128_int8 "$ROOT/policies/grasp-128-int8.dxpl" grasp-128-int8
+grep -E '^(I|S peak) ' "$WORK/grasp128_int8.log" | sed "s/^/   grasp-128-int8: /"
+g128_ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/grasp128_int8.log")
+[ -n "$g128_ctrl_max" ] || die "grasp-128-int8: no instruction count"
+if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
+    sed -i "s/^grasp128_int8_controller_step .*/grasp128_int8_controller_step $g128_ctrl_max/" "$BUDGET"
+fi
+check_budget grasp128_int8_controller_step "$g128_ctrl_max" "instructions per step (task features included)"
 
 case_slots
 case_node
