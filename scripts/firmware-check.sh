@@ -220,6 +220,10 @@ peak_stack() {
     [ -n "$used" ] || die "no peak stack figure in $1"
     echo "$used"
 }
+# worst KIND LOG: the worst (max) instructions of LOG's `I KIND` line; empty when it has none.
+worst() {
+    sed -n "s/^I $1 .*max=\([0-9]*\).*/\1/p" "$2"
+}
 # check_budget NAME VALUE UNIT: VALUE at most the budget + TOLERANCE_PCT.
 check_budget() {
     local name=$1 got=$2 unit=$3 budget
@@ -248,8 +252,8 @@ case_slots() {
     host_ref "$WORK/slots.host" "$GOLDEN/jaco_64.dxpl" --features slots
     same_as_host "$WORK/slots.log" "$WORK/slots.host" slots
     grep -E '^(I|S) ' "$WORK/slots.log" | grep -E 'slot|flash|peak' | sed 's/^/   /'
-    slots_ctrl=$(sed -n 's/^I slot_controller .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
-    slots_req=$(sed -n 's/^I flash_request .*max=\([0-9]*\).*/\1/p' "$WORK/slots.log")
+    slots_ctrl=$(worst slot_controller "$WORK/slots.log")
+    slots_req=$(worst flash_request "$WORK/slots.log")
     [ -n "$slots_ctrl" ] && [ -n "$slots_req" ] || die "slots: no instruction counts"
     footprint "$WORK/slots.elf" "$(stat -c %s "$GOLDEN/jaco_64.dxpl")" "slots "
     # The slot image embeds the recording too: count it with the data, not the code.
@@ -339,9 +343,9 @@ step "2/9 default-size 44-256-256-9 policy on mps2-an386: bit-exactness, instruc
 run_policy p256 "$WORK/jaco_256.dxpl" "44-256-256-9"
 grep -E '^(I|S) ' "$WORK/p256.log" | sed 's/^/   /'
 
-mlp_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
-env_max=$(sed -n 's/^I envelope .*max=\([0-9]*\).*/\1/p' "$WORK/p256.log")
+mlp_max=$(worst mlp "$WORK/p256.log")
+ctrl_max=$(worst controller "$WORK/p256.log")
+env_max=$(worst envelope "$WORK/p256.log")
 [ -n "$mlp_max" ] && [ -n "$ctrl_max" ] && [ -n "$env_max" ] || die "no instruction counts in the QEMU output"
 policy_bytes=$(stat -c %s "$WORK/jaco_256.dxpl")
 footprint "$WORK/p256.elf" "$policy_bytes" ""
@@ -442,8 +446,8 @@ step "6/9 int8 policy file (format v2, W8A16, per-output-channel scales) of the 
 run_policy int8 "$WORK/jaco_256_int8.dxpl" int8
 grep -E '^(H|I|S peak) ' "$WORK/int8.log" | sed 's/^/   /'
 check_error "$WORK/p256.log" "$WORK/int8.log" int8
-int8_max=$(sed -n 's/^I mlp .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
-int8_ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/int8.log")
+int8_max=$(worst mlp "$WORK/int8.log")
+int8_ctrl_max=$(worst controller "$WORK/int8.log")
 [ -n "$int8_max" ] && [ -n "$int8_ctrl_max" ] || die "int8: no instruction count"
 int8_bytes=$(stat -c %s "$WORK/jaco_256_int8.dxpl")
 footprint "$WORK/int8.elf" "$int8_bytes" "int8 "
@@ -472,7 +476,7 @@ check_error "$WORK/trained.log" "$WORK/trained_int8.log" "trained int8"
 # target): its controller step is what the 5 ms loop at 500 kbit/s rests on (docs/benchmarks.md).
 run_policy grasp128_int8 "$ROOT/policies/grasp-128-int8.dxpl" grasp-128-int8
 grep -E '^(I|S peak) ' "$WORK/grasp128_int8.log" | sed "s/^/   grasp-128-int8: /"
-g128_ctrl_max=$(sed -n 's/^I controller .*max=\([0-9]*\).*/\1/p' "$WORK/grasp128_int8.log")
+g128_ctrl_max=$(worst controller "$WORK/grasp128_int8.log")
 [ -n "$g128_ctrl_max" ] || die "grasp-128-int8: no instruction count"
 if [ "${FIRMWARE_BLESS:-0}" = 1 ]; then
     sed -i "s/^grasp128_int8_controller_step .*/grasp128_int8_controller_step $g128_ctrl_max/" "$BUDGET"
