@@ -62,7 +62,7 @@ def test_lockstep_run_is_deterministic(hil_sim, policies, tmp_path):
     # timestamp may differ, so compare sorted). Every controller frame answers a plant frame and
     # carries its bus time, the ones behind the frame the plant waits for too (the status TPDO
     # after the heartbeat, an emergency after the action frames): the bus takes what a node
-    # writes at once as one event (hil-sim/src/bus.rs), so the plant's next `time` cannot come
+    # writes at once as one event (hil-sim/src/bus/thread.rs), so the plant's next `time` cannot come
     # between them and stamp the rest with the next cycle.
     la = sorted((tmp_path / "a.log").read_text().splitlines())
     lb = sorted((tmp_path / "b.log").read_text().splitlines())
