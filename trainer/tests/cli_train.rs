@@ -79,6 +79,36 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     let o = trainer(&more);
     assert!(o.status.success(), "{}", text(&o));
 
+    // `trainer export` writes the run's selected checkpoint again; with --latest, the latest
+    // checkpoint's actor, whatever the selection chose. Neither touches the seed's policy.dxpl.
+    let shipped = std::fs::read(seed.join("policy.dxpl")).unwrap();
+    let export = |dir: &str, latest: bool| {
+        std::fs::create_dir_all(out.join(dir)).unwrap();
+        let file = out.join(dir).join("policy.dxpl");
+        let file_s = file.to_str().unwrap().to_string();
+        let mut args = vec!["export", out_s, "--out", &file_s];
+        if latest {
+            args.push("--latest");
+        }
+        let o = trainer(&args);
+        assert!(o.status.success(), "{}", text(&o));
+        let fin: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join(dir).join("final_eval.json")).unwrap(),
+        )
+        .unwrap();
+        (std::fs::read(&file).unwrap(), fin)
+    };
+    let best: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(seed.join("best.json")).unwrap()).unwrap();
+    let (selected, fin) = export("selected", false);
+    assert_eq!(fin["source"], "selected", "{fin}");
+    assert_eq!(fin["transitions"], best["transitions"], "{fin} {best}");
+    assert_eq!(selected, shipped);
+    let (_, fin) = export("latest", true);
+    assert_eq!(fin["source"], "latest", "{fin}");
+    assert!(fin["transitions"].as_u64().unwrap() >= 180, "{fin}");
+    assert_eq!(std::fs::read(seed.join("policy.dxpl")).unwrap(), shipped);
+
     // Bad flags: clap names the culprit and the accepted values.
     let o = trainer(&["train", "--start", "teleport"]);
     assert!(!o.status.success());

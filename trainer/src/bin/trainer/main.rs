@@ -57,7 +57,8 @@ pub(crate) enum Command {
         /// Run folder (holds seed-*/eval.jsonl).
         run: PathBuf,
     },
-    /// Export a seed's latest checkpoint as a policy file.
+    /// Export a seed's policy file again: the checkpoint the run selected, or with --latest its
+    /// latest one.
     Export(ExportArgs),
     /// Train (resuming) the runs of a figure file, then plot them together (PNG and SVG).
     Figure(FigureArgs),
@@ -318,6 +319,11 @@ struct ExportArgs {
     /// Seed whose checkpoint to export.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Export the latest checkpoint's actor instead of what the run exports (its best checkpoint
+    /// on the selection starts, or the policy it started from where its guard kept that): a run's
+    /// policy at a point of its training, e.g. for a learning curve measured on many starts.
+    #[arg(long)]
+    latest: bool,
     /// Output file (default RUN/seed-S/policy.dxpl, with --int8 RUN/seed-S/policy-int8.dxpl).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -433,11 +439,11 @@ fn main() -> anyhow::Result<()> {
             )
             .context("settings.toml")?;
             if args.int8 {
-                train::export_checkpoint(&dir, &settings, args.seed, &f32_out)?;
+                train::export_checkpoint(&dir, &settings, args.seed, &f32_out, args.latest)?;
                 println!("wrote {}", f32_out.display());
                 export_int8(&f32_out, &out, &settings)
             } else {
-                train::export_checkpoint(&dir, &settings, args.seed, &out)?;
+                train::export_checkpoint(&dir, &settings, args.seed, &out, args.latest)?;
                 println!("wrote {}", out.display());
                 Ok(())
             }

@@ -16,7 +16,7 @@ use dex_trainer::files::atomic_write::write_atomic;
 use dex_trainer::files::result_record::{RecordContext, ResultRecord};
 use dex_trainer::learn::Trainer;
 use dex_trainer::pipeline::imitation::ImitationEvent;
-use dex_trainer::pipeline::train_run::{TrainEvent, TrainPlan, export_selected};
+use dex_trainer::pipeline::train_run::{TrainEvent, TrainPlan, export_latest, export_selected};
 use dex_trainer::pipeline::train_settings::{self, PresetArg, RewardArg, TaskArg, TrainSettings};
 
 use crate::{EvalArgs, TrainArgs};
@@ -562,12 +562,17 @@ pub fn export_checkpoint(
     s: &TrainSettings,
     seed: u64,
     out: &Path,
+    latest: bool,
 ) -> anyhow::Result<()> {
     let ckpt = dir.join("checkpoint.bin");
     let trainer =
         Trainer::load(&ckpt).with_context(|| format!("cannot read {}", ckpt.display()))?;
     let scene = load_scene()?;
-    let eval = export_selected(&trainer, s, seed, dir, out, &scene)?;
+    let eval = if latest {
+        export_latest(&trainer, s, seed, out, &scene)?
+    } else {
+        export_selected(&trainer, s, seed, dir, out, &scene)?
+    };
     println!("runtime evaluation {}", describe(&eval));
     Ok(())
 }

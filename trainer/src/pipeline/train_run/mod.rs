@@ -52,7 +52,7 @@ pub use guard::GuardVerdict;
 use guard::run_guard;
 use run_log::truncate_log;
 pub use screen::Screening;
-pub use seed_export::export_selected;
+pub use seed_export::{export_latest, export_selected};
 use seed_run::train_seed;
 use selection::select_best;
 pub use selection::{BestPolicy, SELECTION_SEED, read_best};

@@ -49,7 +49,7 @@ pub(super) fn selected<'t>(
     trainer: &'t Trainer,
     dir: &Path,
 ) -> Result<Selected<'t>, TrainRunError> {
-    let (net, raw) = trainer.actor();
+    let (net, _) = trainer.actor();
     if let Some((params, best)) = read_best(dir)? {
         return Ok(Selected {
             net,
@@ -58,6 +58,13 @@ pub(super) fn selected<'t>(
             transitions: best.transitions,
         });
     }
+    latest(trainer)
+}
+
+/// `trainer`'s current actor, whatever the selection chose (quantisation-aware: the int8-grid
+/// weights it trained, no normaliser then).
+fn latest(trainer: &Trainer) -> Result<Selected<'_>, TrainRunError> {
+    let (net, raw) = trainer.actor();
     let params = if trainer.quantisation_aware() {
         Cow::Owned(trainer.policy_params()?)
     } else {
@@ -90,14 +97,42 @@ pub fn export_selected(
     if let Some(v) = verdict.as_ref().filter(|v| v.ships_init) {
         return export_init(v, s, out, scene);
     }
+    write_chosen(&chosen, s, seed, out, scene, "selected", verdict.as_ref())
+}
+
+/// Evaluates `chosen` on the final-evaluation starts, writes it to `out` with the measured success
+/// in its provenance, and `final_eval.json` beside it (`source` and the guard's verdict in it).
+fn write_chosen(
+    chosen: &Selected<'_>,
+    s: &TrainSettings,
+    seed: u64,
+    out: &Path,
+    scene: &Scene,
+    source: &str,
+    verdict: Option<&GuardVerdict>,
+) -> Result<PolicyEval, TrainRunError> {
     let mut info = export_info(s, seed, chosen.transitions);
     let draft = chosen.file(&info)?;
     let eval = final_evaluation(&draft, s, scene)?;
     info.success_rate = Some(eval.success_rate() as f32);
     info.eval_episodes = eval.episodes;
     write_file(out, &chosen.file(&info)?)?;
-    write_final_eval(out, &eval, chosen.transitions, "selected", verdict.as_ref())?;
+    write_final_eval(out, &eval, chosen.transitions, source, verdict)?;
     Ok(eval)
+}
+
+/// Exports the latest checkpoint's actor of a seed's run folder (`trainer export --latest`), not
+/// the selected one and whatever the guard decided: a run's policy at a point of its training, for
+/// learning curves measured on many starts. Evaluated and written as [`export_selected`] does,
+/// with `"source": "latest"` in `final_eval.json`.
+pub fn export_latest(
+    trainer: &Trainer,
+    s: &TrainSettings,
+    seed: u64,
+    out: &Path,
+    scene: &Scene,
+) -> Result<PolicyEval, TrainRunError> {
+    write_chosen(&latest(trainer)?, s, seed, out, scene, "latest", None)
 }
 
 /// The guard kept the starting policy: its file, unchanged, is the seed's policy.
