@@ -9,6 +9,8 @@
 //!   real-time (wall clock) or lockstep (bus time, SYNC-driven) mode.
 //! - [`plant`]: the plant node (synthetic plant, or the MuJoCo environment with feature `mujoco`)
 //!   that sends observations every 50 ms and applies the newest valid action; also the NMT master.
+//! - [`closed_loop`]: closed-loop episodes (`hil-sim run`): the plant node and the controller
+//!   node over a bus in this process.
 //! - [`flash`]: policy flashing over CAN: the node's slot storage, and the tool's SDO client
 //!   (CiA 302-3 program download: 0x1F50 data, 0x1F51 start, 0x1F56 check).
 //! - [`bench`]: observation-to-action latency, period jitter, frames and bus load.
@@ -32,6 +34,7 @@ pub mod arbitration;
 pub mod bench;
 pub mod bus;
 pub mod client;
+pub mod closed_loop;
 pub mod compute;
 pub mod flash;
 pub mod latency;

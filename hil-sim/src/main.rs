@@ -11,6 +11,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use dex_hil_sim::bench::{BenchConfig, frame_bits, run_bench};
 use dex_hil_sim::bus::{Bus, BusClock, BusConfig};
+use dex_hil_sim::closed_loop::{ClosedLoopReport, ClosedLoopSettings};
 use dex_hil_sim::compute::{DEFAULT_CPU_HZ, StepCompute};
 use dex_hil_sim::flash::{Transfer, flash};
 use dex_hil_sim::node::{NodeConfig, NodeTiming, TimeMode, spawn_controller_node};
@@ -564,16 +565,32 @@ fn run_command(args: &RunArgs) -> Result<()> {
     Ok(())
 }
 
-/// What a closed-loop run reports.
-struct ClosedLoop {
-    successes: u32,
-    total_return: f64,
-    controller: String,
-    bus: dex_hil_sim::bus::BusStats,
+/// The settings of a closed-loop run (lockstep unless `realtime`), validated from the flags.
+fn closed_loop_settings(
+    episodes: &EpisodeArgs,
+    wire: &WireArgs,
+    realtime: bool,
+    log: Option<PathBuf>,
+) -> Result<ClosedLoopSettings> {
+    let fd_data_bitrate = wire.fd_data_bitrate()?;
+    let mode = if realtime {
+        TimeMode::RealTime
+    } else {
+        TimeMode::Lockstep
+    };
+    Ok(ClosedLoopSettings {
+        episodes: episodes.episodes,
+        seed: episodes.seed,
+        log,
+        wire: wire.wire(),
+        fd_data_bitrate,
+        layout: wire.layout(),
+        node: wire.node_timing(mode)?,
+    })
 }
 
-/// Closed-loop episodes of the policy file `bytes`: plant node and controller node over a bus
-/// in this process (lockstep unless `realtime`).
+/// Closed-loop episodes of the policy file `bytes` on the plant `episodes` names (lockstep unless
+/// `realtime`); prints the emergencies the plant received, if any.
 fn closed_loop(
     bytes: Vec<u8>,
     episodes: &EpisodeArgs,
@@ -581,69 +598,14 @@ fn closed_loop(
     realtime: bool,
     log: Option<PathBuf>,
     on_episode: &mut dyn FnMut(u32, &dex_hil_sim::plant::EpisodeReport),
-) -> Result<ClosedLoop> {
+) -> Result<ClosedLoopReport> {
     let mut plant = make_plant(episodes.plant, &episodes.task, episodes.steps)?;
-    let bus = Bus::start(BusConfig {
-        clock: if realtime {
-            BusClock::Wall
-        } else {
-            BusClock::Virtual
-        },
-        log,
-        wire: wire.wire(),
-        fd_data_bitrate: wire.fd_data_bitrate()?,
-        ..BusConfig::default()
-    })?;
-    let stop = Arc::new(AtomicBool::new(false));
-    let mode = if realtime {
-        TimeMode::RealTime
-    } else {
-        TimeMode::Lockstep
-    };
-    let status = bus.status_slot();
-    let node = spawn_controller_node(
-        bus.addr(),
-        Some(bytes),
-        NodeConfig {
-            controller: dex_runtime::ControllerConfig::default(),
-            layout: wire.layout(),
-        },
-        wire.node_timing(mode)?,
-        Arc::clone(&stop),
-        Some(Arc::clone(&status)),
-    )?;
-    let timing = if realtime {
-        PlantTiming::RealTime
-    } else {
-        PlantTiming::Lockstep
-    };
-    let result = (|| -> Result<(u32, f64)> {
-        let mut node = PlantNode::connect(&bus, timing, 0x10)?.with_layout(wire.layout());
-        node.start_controller()?;
-        let r = node.episodes(
-            plant.as_mut(),
-            episodes.episodes,
-            episodes.seed,
-            false,
-            on_episode,
-        )?;
-        if !node.emergencies().is_empty() {
-            println!("emergencies: {:04X?}", node.emergencies());
-        }
-        Ok((r.successes, r.total_return))
-    })();
-    stop.store(true, Ordering::SeqCst);
-    let _ = node.join();
-    let (successes, total_return) = result?;
-    let controller = status.lock().map(|s| s.clone()).unwrap_or_default();
-    let stats = bus.stats();
-    bus.shutdown();
-    Ok(ClosedLoop {
-        successes,
-        total_return,
-        controller,
-        bus: stats,
-    })
+    let settings = closed_loop_settings(episodes, wire, realtime, log)?;
+    let run = dex_hil_sim::closed_loop::run(&settings, bytes, plant.as_mut(), on_episode)?;
+    if !run.emergencies.is_empty() {
+        println!("emergencies: {:04X?}", run.emergencies);
+    }
+    Ok(run)
 }
 
 fn latency_command(args: &LatencyArgs) -> Result<()> {
