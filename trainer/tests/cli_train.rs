@@ -80,34 +80,34 @@ fn tiny_run_then_resume_rules_and_bad_flags() {
     assert!(o.status.success(), "{}", text(&o));
 
     // `trainer export` writes the run's selected checkpoint again; with --latest, the latest
-    // checkpoint's actor, whatever the selection chose. Neither touches the seed's policy.dxpl.
+    // checkpoint's actor, whatever the selection chose, by default into policy-latest.dxpl with
+    // its own record: neither touches the seed's policy.dxpl or final_eval.json.
     let shipped = std::fs::read(seed.join("policy.dxpl")).unwrap();
-    let export = |dir: &str, latest: bool| {
-        std::fs::create_dir_all(out.join(dir)).unwrap();
-        let file = out.join(dir).join("policy.dxpl");
-        let file_s = file.to_str().unwrap().to_string();
-        let mut args = vec!["export", out_s, "--out", &file_s];
-        if latest {
-            args.push("--latest");
-        }
-        let o = trainer(&args);
-        assert!(o.status.success(), "{}", text(&o));
-        let fin: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(out.join(dir).join("final_eval.json")).unwrap(),
-        )
-        .unwrap();
-        (std::fs::read(&file).unwrap(), fin)
+    let shipped_eval = std::fs::read(seed.join("final_eval.json")).unwrap();
+    let json = |path: std::path::PathBuf| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
     };
-    let best: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(seed.join("best.json")).unwrap()).unwrap();
-    let (selected, fin) = export("selected", false);
+    let best = json(seed.join("best.json"));
+    std::fs::create_dir_all(out.join("selected")).unwrap();
+    let file = out.join("selected").join("policy.dxpl");
+    let o = trainer(&["export", out_s, "--out", file.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let fin = json(out.join("selected").join("final_eval.json"));
     assert_eq!(fin["source"], "selected", "{fin}");
     assert_eq!(fin["transitions"], best["transitions"], "{fin} {best}");
-    assert_eq!(selected, shipped);
-    let (_, fin) = export("latest", true);
+    assert_eq!(std::fs::read(&file).unwrap(), shipped);
+    let o = trainer(&["export", out_s, "--latest"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(seed.join("policy-latest.dxpl").exists(), "{}", text(&o));
+    let fin = json(seed.join("final_eval-latest.json"));
     assert_eq!(fin["source"], "latest", "{fin}");
+    assert_eq!(fin["policy"], "policy-latest.dxpl", "{fin}");
     assert!(fin["transitions"].as_u64().unwrap() >= 180, "{fin}");
     assert_eq!(std::fs::read(seed.join("policy.dxpl")).unwrap(), shipped);
+    assert_eq!(
+        std::fs::read(seed.join("final_eval.json")).unwrap(),
+        shipped_eval
+    );
 
     // Bad flags: clap names the culprit and the accepted values.
     let o = trainer(&["train", "--start", "teleport"]);

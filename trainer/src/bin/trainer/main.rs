@@ -322,6 +322,8 @@ struct ExportArgs {
     /// Export the latest checkpoint's actor instead of what the run exports (its best checkpoint
     /// on the selection starts, or the policy it started from where its guard kept that): a run's
     /// policy at a point of its training, e.g. for a learning curve measured on many starts.
+    /// Default file RUN/seed-S/policy-latest.dxpl (with --int8 also policy-latest-int8.dxpl), its
+    /// record final_eval-latest.json: the run's policy.dxpl and final_eval.json stay as they are.
     #[arg(long)]
     latest: bool,
     /// Output file (default RUN/seed-S/policy.dxpl, with --int8 RUN/seed-S/policy-int8.dxpl).
@@ -427,11 +429,17 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Export(args) => {
             let dir = args.run.join(format!("seed-{}", args.seed));
-            let f32_out = dir.join("policy.dxpl");
+            // The latest checkpoint never replaces the run's own export (policy.dxpl).
+            let stem = if args.latest {
+                "policy-latest"
+            } else {
+                "policy"
+            };
+            let f32_out = dir.join(format!("{stem}.dxpl"));
             let out = match (&args.out, args.int8) {
                 (Some(out), _) => out.clone(),
                 (None, false) => f32_out.clone(),
-                (None, true) => dir.join("policy-int8.dxpl"),
+                (None, true) => dir.join(format!("{stem}-int8.dxpl")),
             };
             let settings: TrainSettings = toml::from_str(
                 &std::fs::read_to_string(dir.join("settings.toml"))

@@ -97,18 +97,26 @@ pub fn export_selected(
     if let Some(v) = verdict.as_ref().filter(|v| v.ships_init) {
         return export_init(v, s, out, scene);
     }
-    write_chosen(&chosen, s, seed, out, scene, "selected", verdict.as_ref())
+    write_chosen(
+        &chosen,
+        s,
+        seed,
+        out,
+        scene,
+        Source::Selected,
+        verdict.as_ref(),
+    )
 }
 
 /// Evaluates `chosen` on the final-evaluation starts, writes it to `out` with the measured success
-/// in its provenance, and `final_eval.json` beside it (`source` and the guard's verdict in it).
+/// in its provenance, and the record of `source` beside it (with the guard's verdict, if any).
 fn write_chosen(
     chosen: &Selected<'_>,
     s: &TrainSettings,
     seed: u64,
     out: &Path,
     scene: &Scene,
-    source: &str,
+    source: Source,
     verdict: Option<&GuardVerdict>,
 ) -> Result<PolicyEval, TrainRunError> {
     let mut info = export_info(s, seed, chosen.transitions);
@@ -124,7 +132,7 @@ fn write_chosen(
 /// Exports the latest checkpoint's actor of a seed's run folder (`trainer export --latest`), not
 /// the selected one and whatever the guard decided: a run's policy at a point of its training, for
 /// learning curves measured on many starts. Evaluated and written as [`export_selected`] does,
-/// with `"source": "latest"` in `final_eval.json`.
+/// with `"source": "latest"`, its record in [`LATEST_EVAL_FILE`] beside `out`.
 pub fn export_latest(
     trainer: &Trainer,
     s: &TrainSettings,
@@ -132,7 +140,7 @@ pub fn export_latest(
     out: &Path,
     scene: &Scene,
 ) -> Result<PolicyEval, TrainRunError> {
-    write_chosen(&latest(trainer)?, s, seed, out, scene, "latest", None)
+    write_chosen(&latest(trainer)?, s, seed, out, scene, Source::Latest, None)
 }
 
 /// The guard kept the starting policy: its file, unchanged, is the seed's policy.
@@ -145,7 +153,7 @@ fn export_init(
     let bytes = std::fs::read(&v.init_policy).map_err(io_at(&v.init_policy))?;
     let eval = final_evaluation(&bytes, s, scene)?;
     write_file(out, &bytes)?;
-    write_final_eval(out, &eval, 0, "init_policy", Some(v))?;
+    write_final_eval(out, &eval, 0, Source::InitPolicy, Some(v))?;
     Ok(eval)
 }
 
@@ -159,13 +167,46 @@ fn final_evaluation(
     Ok(evaluate_policy_file(file, scene, &settings, &|| {})?)
 }
 
-/// `final_eval.json` beside `out`: the figures, which policy it is (`selected` or `init_policy`)
-/// and the guard's verdict, if any.
+/// The evaluation record [`export_latest`] writes beside its file (`final_eval.json` stays the
+/// record of the run's own export, which a latest checkpoint must not replace).
+pub const LATEST_EVAL_FILE: &str = "final_eval-latest.json";
+
+/// Which policy an export wrote: its `source` in the record, and the record's file name.
+#[derive(Debug, Clone, Copy)]
+enum Source {
+    /// The run's selected checkpoint.
+    Selected,
+    /// The policy the run started from (the guard kept it).
+    InitPolicy,
+    /// The latest checkpoint (`trainer export --latest`).
+    Latest,
+}
+
+impl Source {
+    fn name(self) -> &'static str {
+        match self {
+            Source::Selected => "selected",
+            Source::InitPolicy => "init_policy",
+            Source::Latest => "latest",
+        }
+    }
+
+    /// `final_eval.json`, the record of the run's own export, or [`LATEST_EVAL_FILE`].
+    fn record(self) -> &'static str {
+        match self {
+            Source::Latest => LATEST_EVAL_FILE,
+            Source::Selected | Source::InitPolicy => "final_eval.json",
+        }
+    }
+}
+
+/// The record of `source` beside `out`: the figures, which policy it is and the guard's verdict,
+/// if any.
 fn write_final_eval(
     out: &Path,
     eval: &PolicyEval,
     transitions: u64,
-    source: &str,
+    source: Source,
     guard: Option<&GuardVerdict>,
 ) -> Result<(), TrainRunError> {
     let mut json = serde_json::json!({
@@ -177,13 +218,13 @@ fn write_final_eval(
         "mean_return": eval.mean_return,
         "start_seed": crate::env::seeds::EVAL_SEED,
         "transitions": transitions,
-        "source": source,
+        "source": source.name(),
     });
     if let Some(v) = guard {
         json["guard"] = serde_json::to_value(v)?;
     }
     if let Some(dir) = out.parent() {
-        write_file(&dir.join("final_eval.json"), json.to_string().as_bytes())?;
+        write_file(&dir.join(source.record()), json.to_string().as_bytes())?;
     }
     Ok(())
 }
