@@ -19,6 +19,7 @@
 
 pub mod clone_members;
 pub mod cloning;
+pub mod group_pg;
 pub mod imitation;
 pub mod plot;
 pub mod rollout_teacher;

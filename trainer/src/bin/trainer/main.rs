@@ -20,6 +20,7 @@ mod distributed;
 mod eval_flags;
 mod figure;
 mod imitate;
+mod pg;
 mod soup;
 mod train;
 
@@ -72,6 +73,8 @@ pub(crate) enum Command {
     Soup(soup::SoupArgs),
     /// Whether a run's critic orders actions as rollouts in the simulator do.
     CriticRank(critic_rank::CriticRankArgs),
+    /// Fine-tune a policy file by the group-relative policy gradient (on-policy, no critic).
+    Pg(pg::PgArgs),
     /// The toy point-mass task across MPI ranks (a check of the distributed learner; under mpirun).
     #[command(hide = true)]
     DistributedPointMass(distributed::PointMassArgs),
@@ -411,6 +414,7 @@ fn main() -> anyhow::Result<()> {
         Command::Imitate(args) => imitate::imitate(&args),
         Command::Soup(args) => soup::soup_files(&args),
         Command::CriticRank(args) => critic_rank::critic_rank(&args),
+        Command::Pg(args) => pg::pg(&args),
         Command::Plot { run } => {
             let files = train::plot_run(&run)?;
             for f in files {

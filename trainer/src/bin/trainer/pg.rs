@@ -1,0 +1,138 @@
+//! `trainer pg POLICY --out DIR`: fine-tunes a policy file by the group-relative policy gradient
+//! (`dex_trainer::pipeline::group_pg`: on-policy, from the task's success, no critic). Resumes
+//! from `DIR`'s checkpoint when there is one (the iteration budget may grow, nothing else may
+//! change); writes `DIR/policy.dxpl` at the end.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+
+use dex_trainer::files::atomic_write::write_atomic;
+use dex_trainer::pipeline::group_pg::{GroupPg, PROGRESS, run};
+
+use crate::train::{bar, load_scene};
+
+/// `trainer pg` flags (defaults: [`GroupPg::new`]).
+#[derive(Args, Debug)]
+pub struct PgArgs {
+    /// The f32 policy file to start from (its task is the run's).
+    policy: PathBuf,
+    /// Run folder (checkpoint, progress lines, policy files).
+    #[arg(long)]
+    out: PathBuf,
+    /// Iterations (each: the rollouts, then the update).
+    #[arg(long)]
+    iterations: Option<u32>,
+    /// Training starts per iteration.
+    #[arg(long)]
+    groups: Option<u32>,
+    /// Episodes from each start (at least 2).
+    #[arg(long)]
+    replicates: Option<u32>,
+    /// Noise on the arm's actions (standard deviation, action units).
+    #[arg(long)]
+    arm_noise: Option<f32>,
+    /// Noise on the fingers' actions.
+    #[arg(long)]
+    finger_noise: Option<f32>,
+    /// Adam's step size.
+    #[arg(long)]
+    lr: Option<f32>,
+    /// Passes over an iteration's steps.
+    #[arg(long)]
+    epochs: Option<u32>,
+    /// Steps per Adam step.
+    #[arg(long)]
+    minibatch: Option<u32>,
+    /// PPO's ratio clip.
+    #[arg(long)]
+    clip: Option<f32>,
+    /// Weight of the KL divergence to the starting file.
+    #[arg(long)]
+    anchor: Option<f32>,
+    /// Share of the groups that revisit starts where a recent group failed.
+    #[arg(long)]
+    revisit: Option<f32>,
+    /// Seed of the starts, the noise and the minibatch order.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Rollout threads (the result does not depend on them).
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Keep the actor as `policy-NNNN.dxpl` every this many iterations (0: only the latest).
+    #[arg(long, default_value_t = 10)]
+    save_every: u32,
+    /// One line per iteration instead of a progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+impl PgArgs {
+    fn settings(&self) -> GroupPg {
+        let d = GroupPg::new(self.policy.clone());
+        GroupPg {
+            iterations: self.iterations.unwrap_or(d.iterations),
+            groups: self.groups.unwrap_or(d.groups),
+            replicates: self.replicates.unwrap_or(d.replicates),
+            arm_noise: self.arm_noise.unwrap_or(d.arm_noise),
+            finger_noise: self.finger_noise.unwrap_or(d.finger_noise),
+            lr: self.lr.unwrap_or(d.lr),
+            epochs: self.epochs.unwrap_or(d.epochs),
+            minibatch: self.minibatch.unwrap_or(d.minibatch),
+            clip: self.clip.unwrap_or(d.clip),
+            anchor: self.anchor.unwrap_or(d.anchor),
+            revisit: self.revisit.unwrap_or(d.revisit),
+            seed: self.seed.unwrap_or(d.seed),
+            ..d
+        }
+    }
+}
+
+/// Runs `trainer pg`.
+pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
+    let settings = args.settings();
+    settings.validate()?;
+    let task = settings.task()?;
+    let scene = load_scene()?;
+    let pb = bar(
+        u64::from(settings.iterations),
+        args.quiet,
+        "group PG {bar:30} {pos}/{len} iterations ({elapsed}, eta {eta}) {msg}",
+    );
+    let file = run(
+        &settings,
+        &scene,
+        task,
+        &args.out,
+        args.threads,
+        args.save_every,
+        &mut |r| {
+            let line = format!(
+                "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, drift {:.3}, {} env steps",
+                r.iteration + 1,
+                r.successes,
+                r.episodes,
+                r.mixed_groups,
+                r.clipped,
+                r.drift,
+                r.env_steps
+            );
+            if args.quiet {
+                println!("{line}");
+            } else {
+                pb.set_position(u64::from(r.iteration + 1));
+                pb.set_message(format!("{}/{}", r.successes, r.episodes));
+            }
+        },
+    )?;
+    pb.finish_and_clear();
+    let out = args.out.join("policy.dxpl");
+    write_atomic(&out, &file).with_context(|| format!("cannot write {}", out.display()))?;
+    println!(
+        "wrote {} (progress: {})",
+        out.display(),
+        args.out.join(PROGRESS).display()
+    );
+    Ok(())
+}

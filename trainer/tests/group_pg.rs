@@ -1,0 +1,235 @@
+//! The group-relative policy gradient (issue #26): settings out of range and files that do not fit
+//! are refused before any rollout; a run moves the actor, repeats on any thread count, and a
+//! stopped run resumed from its checkpoint ends where the unstopped one did.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use dex_trainer::env::{Scene, Task};
+use dex_trainer::pipeline::group_pg::{
+    CHECKPOINT, GroupPg, GroupPgError, IterationReport, LATEST, PROGRESS, run,
+};
+
+fn grasp_clone() -> std::path::PathBuf {
+    std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/grasp_clone_session14.dxpl"
+    ))
+}
+
+/// Two iterations of three starts with three episodes each; noise large enough that a start's
+/// episodes differ in outcome.
+fn small() -> GroupPg {
+    GroupPg {
+        iterations: 2,
+        groups: 3,
+        replicates: 3,
+        arm_noise: 0.5,
+        finger_noise: 0.5,
+        minibatch: 256,
+        epochs: 2,
+        lr: 1e-4,
+        ..GroupPg::new(grasp_clone())
+    }
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("dex-group-pg-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn settings_out_of_range_are_refused() {
+    let scene = Scene::load().unwrap();
+    let cases: Vec<(GroupPg, &str)> = vec![
+        (
+            GroupPg {
+                replicates: 1,
+                ..small()
+            },
+            "replicates",
+        ),
+        (
+            GroupPg {
+                arm_noise: 0.0,
+                ..small()
+            },
+            "noise",
+        ),
+        (
+            GroupPg {
+                finger_noise: f32::NAN,
+                ..small()
+            },
+            "noise",
+        ),
+        (GroupPg { lr: 0.0, ..small() }, "lr"),
+        (
+            GroupPg {
+                clip: 1.5,
+                ..small()
+            },
+            "clip",
+        ),
+        (
+            GroupPg {
+                anchor: -1.0,
+                ..small()
+            },
+            "anchor",
+        ),
+        (
+            GroupPg {
+                groups: 0,
+                ..small()
+            },
+            "at least 1",
+        ),
+    ];
+    for (s, what) in cases {
+        let dir = tmp("bad");
+        let e = run(&s, &scene, Task::Grasp, &dir, 1, 0, &mut |_| {}).unwrap_err();
+        assert!(
+            matches!(e, GroupPgError::Settings(ref m) if m.contains(what)),
+            "{what}: {e}"
+        );
+        assert!(!dir.exists(), "a refused run leaves no folder");
+    }
+}
+
+#[test]
+fn files_that_do_not_fit_are_refused() {
+    let scene = Scene::load().unwrap();
+    let dir = tmp("task");
+    let e = run(&small(), &scene, Task::Stack, &dir, 1, 0, &mut |_| {}).unwrap_err();
+    assert!(e.to_string().contains("Grasp"), "{e}");
+    let missing = GroupPg {
+        policy: dir.join("missing.dxpl"),
+        ..small()
+    };
+    let e = run(&missing, &scene, Task::Grasp, &dir, 1, 0, &mut |_| {}).unwrap_err();
+    assert!(matches!(e, GroupPgError::Io { .. }), "{e}");
+    let corrupt = tmp("corrupt");
+    std::fs::create_dir_all(&corrupt).unwrap();
+    let mut bytes = std::fs::read(grasp_clone()).unwrap();
+    let k = bytes.len() / 2;
+    bytes[k] ^= 0x40;
+    std::fs::write(corrupt.join("p.dxpl"), &bytes).unwrap();
+    let bad = GroupPg {
+        policy: corrupt.join("p.dxpl"),
+        ..small()
+    };
+    let e = run(&bad, &scene, Task::Grasp, &dir, 1, 0, &mut |_| {}).unwrap_err();
+    assert!(e.to_string().contains("policy file"), "{e}");
+    let _ = std::fs::remove_dir_all(&corrupt);
+}
+
+#[test]
+fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
+    let scene = Scene::load().unwrap();
+    let s = small();
+    let (one, two, resumed) = (tmp("one"), tmp("two"), tmp("resumed"));
+    let mut reports: Vec<IterationReport> = Vec::new();
+    let first = run(&s, &scene, Task::Grasp, &one, 1, 1, &mut |r| {
+        reports.push(r.clone());
+        if r.iteration == 0 {
+            // The state a run stopped after its first iteration would have left.
+            std::fs::create_dir_all(&resumed).unwrap();
+            std::fs::copy(one.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
+        }
+    })
+    .unwrap();
+    assert_eq!(reports.len(), 2);
+    assert!(
+        reports.iter().any(|r| r.mixed_groups > 0 && r.samples > 0),
+        "no start had both outcomes: {reports:?}"
+    );
+    let start = std::fs::read(grasp_clone()).unwrap();
+    let latest = std::fs::read(one.join(LATEST)).unwrap();
+    assert_eq!(latest, first);
+    assert_ne!(latest, start, "the actor did not move");
+    assert!(one.join("policy-0001.dxpl").exists() && one.join("policy-0002.dxpl").exists());
+    let lines = std::fs::read_to_string(one.join(PROGRESS)).unwrap();
+    assert_eq!(lines.lines().count(), 2);
+
+    let second = run(&s, &scene, Task::Grasp, &two, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, second, "the thread count changed the result");
+
+    let mut resumed_reports = Vec::new();
+    let third = run(&s, &scene, Task::Grasp, &resumed, 2, 0, &mut |r| {
+        resumed_reports.push(r.iteration)
+    })
+    .unwrap();
+    assert_eq!(
+        resumed_reports,
+        vec![1],
+        "the resumed run starts at iteration 1"
+    );
+    assert_eq!(
+        first, third,
+        "the resumed run differs from the unstopped one"
+    );
+
+    // A larger budget continues the run from where it stopped.
+    let mut more = Vec::new();
+    let longer = GroupPg {
+        iterations: 3,
+        ..small()
+    };
+    run(&longer, &scene, Task::Grasp, &resumed, 2, 0, &mut |r| {
+        more.push(r.iteration)
+    })
+    .unwrap();
+    assert_eq!(more, vec![2]);
+
+    // A checkpoint of other settings is refused, and the folder keeps it.
+    let other = GroupPg {
+        lr: 2e-4,
+        iterations: 3,
+        ..small()
+    };
+    let before = std::fs::read(resumed.join(CHECKPOINT)).unwrap();
+    let e = run(&other, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {}).unwrap_err();
+    assert!(matches!(e, GroupPgError::Checkpoint { .. }), "{e}");
+    assert_eq!(std::fs::read(resumed.join(CHECKPOINT)).unwrap(), before);
+    for d in [one, two, resumed] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn the_command_line_writes_the_policy_and_refuses_bad_flags() {
+    use std::process::Command;
+    let dir = tmp("cli");
+    let out = Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
+        .arg(&dir)
+        .args(["--iterations", "1", "--groups", "2", "--replicates", "2"])
+        .args(["--threads", "1", "--quiet"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("iteration 1 success"), "{text}");
+    assert!(dir.join("policy.dxpl").exists() && dir.join(PROGRESS).exists());
+    // The file is a Grasp policy the evaluator runs.
+    let bytes = std::fs::read(dir.join("policy.dxpl")).unwrap();
+    let aligned = dex_runtime::aligned::aligned_copy(&bytes);
+    let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes()).unwrap();
+    assert_eq!(view.body().task, dex_policy::Task::Grasp);
+
+    let bad = Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
+        .arg(dir.join("bad"))
+        .args(["--clip", "2"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("clip must be in (0, 1)"));
+    assert!(!dir.join("bad").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
