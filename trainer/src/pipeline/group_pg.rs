@@ -203,11 +203,15 @@ impl GroupPg {
         )
     }
 
+    /// How many of an iteration's groups revisit a start, with `hard` starts to choose from.
+    pub fn revisits(&self, hard: usize) -> usize {
+        ((self.revisit * self.groups as f32).round() as usize).min(hard)
+    }
+
     /// The start seeds of iteration `i`: the first `revisit * groups` (at most as many as
     /// `hard` holds) drawn from `hard` without repeats, the rest fresh.
     pub fn starts(&self, iteration: u32, hard: &[u64]) -> Vec<u64> {
-        let wanted = (self.revisit * self.groups as f32).round() as usize;
-        let k = wanted.min(hard.len());
+        let k = self.revisits(hard.len());
         let mut pool = hard.to_vec();
         let mut rng = Rng::derive(self.seed, 0x6770_4000 + u64::from(iteration));
         let mut out = Vec::with_capacity(self.groups as usize);
@@ -422,7 +426,10 @@ pub fn run(
     for iteration in first..settings.iterations {
         let policy = actor.export(&info(env_steps))?;
         let starts = settings.starts(iteration, &hard);
-        let episodes = rollouts(settings, scene, task, &policy, &starts, iteration, threads)?;
+        let revisited = settings.revisits(hard.len());
+        let episodes = rollouts(
+            settings, scene, task, &policy, &starts, revisited, iteration, threads,
+        )?;
         remember_hard(&mut hard, &starts, &episodes, settings.replicates as usize);
         env_steps += episodes.iter().map(|e| e.obs.len() as u64).sum::<u64>();
         let mut report = update(
@@ -496,13 +503,16 @@ fn remember_hard(hard: &mut Vec<u64>, starts: &[u64], episodes: &[Episode], reps
     }
 }
 
-/// The noisy episodes of `policy`, `replicates` from each start, in (start, replicate) order.
+/// The noisy episodes of `policy`, `replicates` from each start, in (start, replicate) order;
+/// the first `revisited` starts are revisits.
+#[allow(clippy::too_many_arguments)]
 fn rollouts(
     s: &GroupPg,
     scene: &Scene,
     task: Task,
     policy: &[u8],
     starts: &[u64],
+    revisited: usize,
     iteration: u32,
     threads: usize,
 ) -> Result<Vec<Episode>, GroupPgError> {
@@ -518,8 +528,14 @@ fn rollouts(
         },
         |(mlp, env), i| {
             let (seed, k) = (starts[i / reps], (i % reps) as u64);
-            // A revisited start draws new noise: the stream names the iteration too.
-            let mut rng = Rng::derive(seed, (0x6770 << 48) + (u64::from(iteration) << 16) + k);
+            // A fresh start is used once; a revisited one draws new noise, from a stream that
+            // names the iteration too.
+            let stream = if i / reps < revisited {
+                (0x6770 << 48) + (u64::from(iteration) << 16) + k
+            } else {
+                0x6770_0000 + k
+            };
+            let mut rng = Rng::derive(seed, stream);
             episode(s, env, mlp, seed, &mut rng)
         },
         &|| {},
