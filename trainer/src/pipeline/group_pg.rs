@@ -313,16 +313,8 @@ impl Actor {
     /// normalised and clipped as the file does.
     fn input(&self, obs: &[f32; OBS_DIM], out: &mut [f32]) {
         let mut buf = [0.0f32; INPUT_MAX];
-        let x = policy_input(obs, self.net.input_dim(), &mut buf);
-        let c = self.scaling.clip;
-        for (((o, &v), m), s) in out
-            .iter_mut()
-            .zip(x)
-            .zip(&self.scaling.norm.mean)
-            .zip(&self.scaling.norm.inv_std)
-        {
-            *o = ((v - m) * s).clamp(-c, c);
-        }
+        out.copy_from_slice(policy_input(obs, self.net.input_dim(), &mut buf));
+        self.scaling.apply_rows(out);
     }
 
     fn export(&self, info: &ExportInfo) -> Result<Vec<u8>, GroupPgError> {
@@ -423,8 +415,9 @@ pub fn run(
     };
     let mb = settings.minibatch as usize;
     let mut scratch = actor.net.scratch(mb);
+    // The actor the rollouts run: after each update it is also the iteration's saved file.
+    let mut policy = actor.export(&info(env_steps))?;
     for iteration in first..settings.iterations {
-        let policy = actor.export(&info(env_steps))?;
         let starts = settings.starts(iteration, &hard);
         let revisited = settings.revisits(hard.len());
         let episodes = rollouts(
@@ -443,14 +436,14 @@ pub fn run(
             &mut scratch,
         )?;
         report.env_steps = env_steps;
-        let latest = actor.export(&info(env_steps))?;
+        policy = actor.export(&info(env_steps))?;
         let save = |name: String, bytes: &[u8]| {
             let p = dir.join(name);
             write_atomic(&p, bytes).map_err(io(&p))
         };
-        save(LATEST.to_owned(), &latest)?;
+        save(LATEST.to_owned(), &policy)?;
         if save_every > 0 && (iteration + 1) % save_every == 0 {
-            save(format!("policy-{:04}.dxpl", iteration + 1), &latest)?;
+            save(format!("policy-{:04}.dxpl", iteration + 1), &policy)?;
         }
         let ckpt = Checkpoint {
             settings: settings.clone(),
@@ -473,7 +466,7 @@ pub fn run(
         append_line(&progress, &line).map_err(io(&progress))?;
         on_iteration(&report);
     }
-    actor.export(&info(env_steps))
+    Ok(policy)
 }
 
 fn append_line(path: &Path, line: &str) -> std::io::Result<()> {
@@ -628,6 +621,7 @@ fn update(
     let mut rng = Rng::derive(s.seed, 0x6770_8000 + u64::from(iteration));
     let mb = s.minibatch as usize;
     let (mut batch_in, mut dout) = (vec![0.0f32; mb * d], vec![0.0f32; mb * ACT_DIM]);
+    let mut mu = vec![0.0f32; mb * ACT_DIM];
     let mut grads = vec![0.0f32; actor.params.len()];
     let (mut clipped, mut seen) = (0u64, 0u64);
     for _ in 0..s.epochs {
@@ -639,10 +633,12 @@ fn update(
             for (r, &i) in chunk.iter().enumerate() {
                 batch_in[r * d..(r + 1) * d].copy_from_slice(&inputs[i * d..(i + 1) * d]);
             }
-            let mu = actor
-                .net
-                .forward(&actor.params, &batch_in[..rows * d], rows, scratch)?
-                .to_vec();
+            mu[..rows * ACT_DIM].copy_from_slice(actor.net.forward(
+                &actor.params,
+                &batch_in[..rows * d],
+                rows,
+                scratch,
+            )?);
             let scale = 1.0 / rows as f32;
             for (r, &i) in chunk.iter().enumerate() {
                 let (mo, ep, mc) = (
