@@ -63,7 +63,9 @@ pub struct StepOutcome {
 }
 
 /// A full copy of the simulation state, cheap to restore (MuJoCo's `mjSTATE_INTEGRATION`).
-#[derive(Debug, Clone, PartialEq)]
+/// Serialisable so that a learner can keep states in its checkpoint; restoring one of another
+/// scene's size is refused ([`EnvError::Snapshot`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EnvSnapshot {
     state: Box<[f64]>,
     steps: u32,

@@ -85,6 +85,20 @@ fn settings_out_of_range_are_refused() {
             },
             "at least 1",
         ),
+        (
+            GroupPg {
+                stall_harvest: 10,
+                ..small()
+            },
+            "stall_harvest finds states for stall_groups",
+        ),
+        (
+            GroupPg {
+                stall_groups: 257,
+                ..small()
+            },
+            "stall_groups must be at most 256",
+        ),
     ];
     for (s, what) in cases {
         let dir = tmp("bad");
@@ -192,6 +206,63 @@ fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
     let e = run(&other, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {}).unwrap_err();
     assert!(matches!(e, GroupPgError::Checkpoint { .. }), "{e}");
     assert_eq!(std::fs::read(resumed.join(CHECKPOINT)).unwrap(), before);
+    for d in [one, two, resumed] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+/// Session 14's Stack clone; with seed 2 its noise-free episodes from the harvest block stall
+/// once in the first 24.
+fn stall_run() -> GroupPg {
+    GroupPg {
+        iterations: 2,
+        groups: 1,
+        replicates: 2,
+        stall_groups: 1,
+        stall_harvest: 24,
+        seed: 2,
+        minibatch: 256,
+        epochs: 1,
+        ..GroupPg::new(std::path::PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/stack_clone_session14.dxpl"
+        )))
+    }
+}
+
+#[test]
+fn stall_groups_start_from_harvested_stalls_and_resume_exactly() {
+    let scene = Scene::load().unwrap();
+    let s = stall_run();
+    let (one, two, resumed) = (tmp("stall-one"), tmp("stall-two"), tmp("stall-resumed"));
+    let mut reports: Vec<IterationReport> = Vec::new();
+    let first = run(&s, &scene, Task::Stack, &one, 1, 0, &mut |r| {
+        reports.push(r.clone());
+        if r.iteration == 0 {
+            std::fs::create_dir_all(&resumed).unwrap();
+            std::fs::copy(one.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
+        }
+    })
+    .unwrap();
+    for r in &reports {
+        assert_eq!(r.stall_groups, 1, "{r:?}");
+        assert!(r.stall_pool >= 1, "{r:?}");
+        // One fresh group of whole episodes, one group from the stall (shorter episodes).
+        assert_eq!(r.episodes, 4);
+    }
+    // The harvest's 24 whole episodes are counted.
+    assert!(
+        reports[0].env_steps > 24 * 150 + 2 * 150,
+        "{:?}",
+        reports[0]
+    );
+    let second = run(&s, &scene, Task::Stack, &two, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, second, "the thread count changed the result");
+    let third = run(&s, &scene, Task::Stack, &resumed, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(
+        first, third,
+        "the resumed run (its stall pool from the checkpoint) differs"
+    );
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }

@@ -26,6 +26,13 @@
 //! Episode `k` of a group in iteration `i` draws its noise from its own stream. An iteration's
 //! result therefore does not depend on the thread count, and a run resumed from its checkpoint
 //! repeats the run that was not stopped.
+//!
+//! With `stall_groups` (session 31), each iteration also runs that many groups from stalled
+//! states ([`super::stall_starts`]): simulator snapshots where an episode of the policy got stuck
+//! before its grasp and then failed, harvested from the starting file's noise-free episodes
+//! (`stall_harvest` of them, from their own seed block `+ 8`) and from every iteration's noisy
+//! episodes, the newest [`STALL_POOL`] kept in the checkpoint. Episodes from a stall run from its
+//! step to the task's last.
 
 use std::path::{Path, PathBuf};
 
@@ -47,6 +54,7 @@ use crate::learn::bc::ObsScaling;
 use crate::learn::nets::{LayerSpec, Mlp, MlpScratch, MlpSpec};
 use crate::learn::norm::Normalizer;
 use crate::learn::{LearnError, Rng};
+use crate::pipeline::stall_starts::{StallDetector, StallStart, harvest};
 
 /// The checkpoint of a run folder (parameters, Adam's moments, the next iteration).
 pub const CHECKPOINT: &str = "group-pg.ckpt";
@@ -123,6 +131,14 @@ pub struct GroupPg {
     /// of the episodes carry a gradient; the objective then weighs the hard starts more.
     #[serde(default)]
     pub revisit: f32,
+    /// Groups per iteration, beside `groups`, that start from stalled states of the policy
+    /// (0: none; at most [`STALL_POOL`]).
+    #[serde(default)]
+    pub stall_groups: u32,
+    /// Noise-free episodes of the starting file whose stalls fill the pool before the first
+    /// iteration (0: the pool fills from the noisy episodes alone).
+    #[serde(default)]
+    pub stall_harvest: u32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -143,6 +159,8 @@ impl GroupPg {
             clip: 0.2,
             anchor: 0.0,
             revisit: 0.0,
+            stall_groups: 0,
+            stall_harvest: 0,
             seed: 1,
         }
     }
@@ -171,6 +189,15 @@ impl GroupPg {
         }
         if !(self.revisit.is_finite() && (0.0..1.0).contains(&self.revisit)) {
             return bad("revisit must be in [0, 1)");
+        }
+        if self.stall_groups as usize > STALL_POOL {
+            return bad("stall_groups must be at most 256 (the stall pool's size)");
+        }
+        if self.stall_harvest > 0 && self.stall_groups == 0 {
+            return bad("stall_harvest finds states for stall_groups, which is 0");
+        }
+        if self.stall_harvest > 100_000 {
+            return bad("stall_harvest must be at most 100000 episodes");
         }
         Ok(())
     }
@@ -201,6 +228,22 @@ impl GroupPg {
             DEMO_SEED + self.seed * 1_000 + 7,
             u64::from(iteration) * u64::from(self.groups) + u64::from(group),
         )
+    }
+
+    /// Start seed of the `i`-th noise-free episode that harvests stalls before the first
+    /// iteration.
+    pub fn harvest_seed(&self, i: u32) -> u64 {
+        episode_seed(DEMO_SEED + self.seed * 1_000 + 8, u64::from(i))
+    }
+
+    /// The pool entries the stall groups of iteration `i` start from: `stall_groups` of `pool`
+    /// (all of them when it holds fewer), without repeats.
+    pub fn stall_picks(&self, iteration: u32, pool: usize) -> Vec<usize> {
+        let mut left: Vec<usize> = (0..pool).collect();
+        let mut rng = Rng::derive(self.seed, 0x6770_5000 + u64::from(iteration));
+        (0..(self.stall_groups as usize).min(pool))
+            .map(|_| left.swap_remove(rng.below(left.len())))
+            .collect()
     }
 
     /// How many of an iteration's groups revisit a start, with `hard` starts to choose from.
@@ -244,6 +287,15 @@ pub struct IterationReport {
     pub drift: f64,
     /// Environment steps so far (all iterations).
     pub env_steps: u64,
+    /// Groups run from stalled states (counted in `episodes`).
+    #[serde(default)]
+    pub stall_groups: u32,
+    /// Of their episodes, successful.
+    #[serde(default)]
+    pub stall_successes: u32,
+    /// Stalled states in the pool after the iteration.
+    #[serde(default)]
+    pub stall_pool: u32,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -257,14 +309,27 @@ struct Checkpoint {
     t_local: u64,
     t_shared: u64,
     hard: Vec<u64>,
+    stalls: Vec<StallStart>,
 }
 
+/// Stalled states kept for the stall groups (the newest).
+pub const STALL_POOL: usize = 256;
+
 /// One noisy episode: the observations the controller saw (CAN-quantised), the noise added to
-/// each action, the outcome.
+/// each action, the outcome, and (from a start seed) the state where it stalled before failing.
 struct Episode {
     obs: Vec<[f32; OBS_DIM]>,
     noise: Vec<[f32; ACT_DIM]>,
     success: bool,
+    stall: Option<StallStart>,
+}
+
+/// Where a group's episodes begin.
+enum Start<'a> {
+    /// A start seed and the noise stream tag of its episodes.
+    Seed(u64, u64),
+    /// A stalled state and the noise stream tag of its episodes.
+    Stall(&'a StallStart, u64),
 }
 
 /// The actor being fine-tuned, in the starting file's input coordinates.
@@ -369,6 +434,7 @@ pub fn run(
     let mut shared = AdamShared::new(n);
     let (mut first, mut env_steps) = (0u32, 0u64);
     let mut hard: Vec<u64> = Vec::new();
+    let mut stalls: Vec<StallStart> = Vec::new();
     let ckpt_path = dir.join(CHECKPOINT);
     if ckpt_path.exists() {
         let bytes = std::fs::read(&ckpt_path).map_err(io(&ckpt_path))?;
@@ -401,6 +467,7 @@ pub fn run(
         first = c.next_iteration;
         env_steps = c.env_steps;
         hard = c.hard;
+        stalls = c.stalls;
     }
     let info = |env_steps: u64| ExportInfo {
         task,
@@ -417,13 +484,49 @@ pub fn run(
     let mut scratch = actor.net.scratch(mb);
     // The actor the rollouts run: after each update it is also the iteration's saved file.
     let mut policy = actor.export(&info(env_steps))?;
+    if first == 0 && settings.stall_harvest > 0 {
+        let seeds: Vec<u64> = (0..settings.stall_harvest)
+            .map(|i| settings.harvest_seed(i))
+            .collect();
+        let (found, steps) = harvest(&file, scene, task, &seeds, threads)?;
+        env_steps += steps;
+        remember_stalls(&mut stalls, found);
+    }
+    let reps = settings.replicates as usize;
     for iteration in first..settings.iterations {
-        let starts = settings.starts(iteration, &hard);
+        let seeds = settings.starts(iteration, &hard);
         let revisited = settings.revisits(hard.len());
-        let episodes = rollouts(
-            settings, scene, task, &policy, &starts, revisited, iteration, threads,
-        )?;
-        remember_hard(&mut hard, &starts, &episodes, settings.replicates as usize);
+        let picks = settings.stall_picks(iteration, stalls.len());
+        let mut starts: Vec<Start<'_>> = seeds
+            .iter()
+            .enumerate()
+            .map(|(g, &seed)| {
+                // A fresh start is used once; a revisited one draws new noise, from a stream
+                // that names the iteration too.
+                let tag = if g < revisited {
+                    (0x6770 << 48) + (u64::from(iteration) << 16)
+                } else {
+                    0x6770_0000
+                };
+                Start::Seed(seed, tag)
+            })
+            .collect();
+        starts.extend(picks.iter().map(|&p| {
+            let s = &stalls[p];
+            let tag = (0x6771 << 48)
+                + (u64::from(s.snapshot.steps()) << 32)
+                + (u64::from(iteration) << 16);
+            Start::Stall(s, tag)
+        }));
+        let mut episodes = rollouts(settings, scene, task, &policy, &starts, threads)?;
+        remember_hard(&mut hard, &seeds, &episodes, reps);
+        let from_stalls = &episodes[seeds.len() * reps..];
+        let stall_successes = from_stalls.iter().filter(|e| e.success).count() as u32;
+        let found: Vec<StallStart> = episodes[..seeds.len() * reps]
+            .chunks_mut(reps)
+            .filter_map(|group| group.iter_mut().find_map(|e| e.stall.take()))
+            .collect();
+        remember_stalls(&mut stalls, found);
         env_steps += episodes.iter().map(|e| e.obs.len() as u64).sum::<u64>();
         let mut report = update(
             settings,
@@ -436,6 +539,9 @@ pub fn run(
             &mut scratch,
         )?;
         report.env_steps = env_steps;
+        report.stall_groups = picks.len() as u32;
+        report.stall_successes = stall_successes;
+        report.stall_pool = stalls.len() as u32;
         policy = actor.export(&info(env_steps))?;
         let save = |name: String, bytes: &[u8]| {
             let p = dir.join(name);
@@ -455,6 +561,7 @@ pub fn run(
             t_local: local.t,
             t_shared: shared.t,
             hard: hard.clone(),
+            stalls: stalls.clone(),
         };
         let bytes = postcard::to_allocvec(&ckpt).map_err(|e| GroupPgError::Checkpoint {
             path: ckpt_path.clone(),
@@ -496,17 +603,23 @@ fn remember_hard(hard: &mut Vec<u64>, starts: &[u64], episodes: &[Episode], reps
     }
 }
 
+/// Adds newly found stalls to the pool, keeping the newest [`STALL_POOL`].
+fn remember_stalls(pool: &mut Vec<StallStart>, found: Vec<StallStart>) {
+    pool.extend(found);
+    if pool.len() > STALL_POOL {
+        let extra = pool.len() - STALL_POOL;
+        pool.drain(..extra);
+    }
+}
+
 /// The noisy episodes of `policy`, `replicates` from each start, in (start, replicate) order;
-/// the first `revisited` starts are revisits.
-#[allow(clippy::too_many_arguments)]
+/// episode `k` of a start draws its noise from the stream `tag + k` of the start's seed.
 fn rollouts(
     s: &GroupPg,
     scene: &Scene,
     task: Task,
     policy: &[u8],
-    starts: &[u64],
-    revisited: usize,
-    iteration: u32,
+    starts: &[Start<'_>],
     threads: usize,
 ) -> Result<Vec<Episode>, GroupPgError> {
     let aligned = dex_runtime::aligned::aligned_copy(policy);
@@ -520,30 +633,37 @@ fn rollouts(
             Ok((mlp, JacoEnv::new(scene, EnvConfig::new(task))))
         },
         |(mlp, env), i| {
-            let (seed, k) = (starts[i / reps], (i % reps) as u64);
-            // A fresh start is used once; a revisited one draws new noise, from a stream that
-            // names the iteration too.
-            let stream = if i / reps < revisited {
-                (0x6770 << 48) + (u64::from(iteration) << 16) + k
-            } else {
-                0x6770_0000 + k
-            };
-            let mut rng = Rng::derive(seed, stream);
-            episode(s, env, mlp, seed, &mut rng)
+            let k = (i % reps) as u64;
+            match &starts[i / reps] {
+                Start::Seed(seed, tag) => {
+                    let o = env.reset(*seed).map_err(EvalError::from)?;
+                    let mut rng = Rng::derive(*seed, tag + k);
+                    episode(s, env, mlp, o, Some(*seed), &mut rng)
+                }
+                Start::Stall(stall, tag) => {
+                    let o = env.restore(&stall.snapshot).map_err(EvalError::from)?;
+                    let mut rng = Rng::derive(stall.seed, tag + k);
+                    episode(s, env, mlp, o, None, &mut rng)
+                }
+            }
         },
         &|| {},
     )
 }
 
+/// One noisy episode from the environment's current state `o` to the task's last step. With
+/// `seed` (an episode from a start seed) it also watches for the stall.
 fn episode(
     s: &GroupPg,
     env: &mut JacoEnv,
     mlp: &mut RuntimeMlp<'_, EVAL_WIDTH>,
-    seed: u64,
+    mut o: [f32; OBS_DIM],
+    seed: Option<u64>,
     rng: &mut Rng,
 ) -> Result<Episode, GroupPgError> {
-    let mut o = env.reset(seed).map_err(EvalError::from)?;
     let (mut obs, mut noise) = (Vec::with_capacity(160), Vec::with_capacity(160));
+    let mut detector = StallDetector::new();
+    let mut stall = None;
     loop {
         let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
         let e: [f32; ACT_DIM] = std::array::from_fn(|j| rng.normal(0.0, s.sigma(j)));
@@ -553,12 +673,20 @@ fn episode(
         obs.push(std::array::from_fn(|i| quantise_observation(i, o[i])));
         noise.push(e);
         let out = env.step(&a).map_err(EvalError::from)?;
+        if seed.is_some() && s.stall_groups > 0 && detector.observe(env, &out) {
+            stall = Some(env.snapshot());
+        }
         o = out.observation;
         if out.done {
+            let stall = seed
+                .zip(stall)
+                .filter(|_| !out.success)
+                .map(|(seed, snapshot)| StallStart { seed, snapshot });
             return Ok(Episode {
                 obs,
                 noise,
                 success: out.success,
+                stall,
             });
         }
     }
@@ -610,6 +738,9 @@ fn update(
         clipped: 0.0,
         drift: 0.0,
         env_steps: 0,
+        stall_groups: 0,
+        stall_successes: 0,
+        stall_pool: 0,
     };
     if samples == 0 {
         return Ok(report);
@@ -733,6 +864,7 @@ mod tests {
             obs: Vec::new(),
             noise: Vec::new(),
             success,
+            stall: None,
         }
     }
 

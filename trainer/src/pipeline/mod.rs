@@ -26,5 +26,6 @@ pub mod rollout_teacher;
 pub mod run_lock;
 pub mod run_plots;
 pub mod self_imitation;
+pub mod stall_starts;
 pub mod train_run;
 pub mod train_settings;

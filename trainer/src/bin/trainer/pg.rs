@@ -54,6 +54,14 @@ pub struct PgArgs {
     /// Share of the groups that revisit starts where a recent group failed.
     #[arg(long)]
     revisit: Option<f32>,
+    /// Groups per iteration, beside `--groups`, from states where the policy stalled before its
+    /// grasp (`dex_trainer::pipeline::stall_starts`).
+    #[arg(long)]
+    stall_groups: Option<u32>,
+    /// Noise-free episodes of the starting file whose stalls fill the pool before the first
+    /// iteration (needs `--stall-groups`).
+    #[arg(long)]
+    stall_harvest: Option<u32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -83,6 +91,8 @@ impl PgArgs {
             clip: self.clip.unwrap_or(d.clip),
             anchor: self.anchor.unwrap_or(d.anchor),
             revisit: self.revisit.unwrap_or(d.revisit),
+            stall_groups: self.stall_groups.unwrap_or(d.stall_groups),
+            stall_harvest: self.stall_harvest.unwrap_or(d.stall_harvest),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         }
@@ -108,7 +118,7 @@ pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
         args.threads,
         args.save_every,
         &mut |r| {
-            let line = format!(
+            let mut line = format!(
                 "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, drift {:.3}, {} env steps",
                 r.iteration + 1,
                 r.successes,
@@ -118,6 +128,13 @@ pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
                 r.drift,
                 r.env_steps
             );
+            if settings.stall_groups > 0 {
+                let reps = r.stall_groups * settings.replicates;
+                line += &format!(
+                    "; from stalls {}/{reps} ({} groups, pool {})",
+                    r.stall_successes, r.stall_groups, r.stall_pool
+                );
+            }
             if args.quiet {
                 println!("{line}");
             } else {
