@@ -94,6 +94,13 @@ fn settings_out_of_range_are_refused() {
         ),
         (
             GroupPg {
+                fresh_anchor: -0.5,
+                ..small()
+            },
+            "fresh_anchor",
+        ),
+        (
+            GroupPg {
                 stall_groups: 257,
                 ..small()
             },
@@ -212,12 +219,15 @@ fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
 }
 
 /// Session 14's Stack clone; with seed 2 its noise-free episodes from the harvest block stall
-/// once in the first 24.
+/// once in the first 24. Noise large enough that a group's episodes sometimes differ in outcome.
 fn stall_run() -> GroupPg {
     GroupPg {
         iterations: 2,
         groups: 1,
-        replicates: 2,
+        replicates: 4,
+        arm_noise: 0.2,
+        finger_noise: 0.1,
+        lr: 1e-4,
         stall_groups: 1,
         stall_harvest: 24,
         seed: 2,
@@ -248,8 +258,12 @@ fn stall_groups_start_from_harvested_stalls_and_resume_exactly() {
         assert_eq!(r.stall_groups, 1, "{r:?}");
         assert!(r.stall_pool >= 1, "{r:?}");
         // One fresh group of whole episodes, one group from the stall (shorter episodes).
-        assert_eq!(r.episodes, 4);
+        assert_eq!(r.episodes, 8);
     }
+    assert!(
+        reports.iter().any(|r| r.mixed_groups > 0),
+        "no group had both outcomes: {reports:?}"
+    );
     // The harvest's 24 whole episodes are counted.
     assert!(
         reports[0].env_steps > 24 * 150 + 2 * 150,
@@ -263,7 +277,24 @@ fn stall_groups_start_from_harvested_stalls_and_resume_exactly() {
         first, third,
         "the resumed run (its stall pool from the checkpoint) differs"
     );
-    for d in [one, two, resumed] {
+
+    // The fresh anchor keeps every step of the start-seed group, with or without a gradient,
+    // and pulls the actor back towards the clone once it has moved.
+    let anchored = GroupPg {
+        fresh_anchor: 1.0,
+        ..stall_run()
+    };
+    let fa = tmp("stall-fresh-anchor");
+    let mut fa_reports: Vec<IterationReport> = Vec::new();
+    let fourth = run(&anchored, &scene, Task::Stack, &fa, 2, 0, &mut |r| {
+        fa_reports.push(r.clone())
+    })
+    .unwrap();
+    let fresh_steps = 4 * 150;
+    assert!(fa_reports[0].samples >= fresh_steps, "{:?}", fa_reports[0]);
+    assert!(fa_reports[0].samples >= reports[0].samples);
+    assert_ne!(fourth, first, "the anchor changed nothing");
+    for d in [one, two, resumed, fa] {
         let _ = std::fs::remove_dir_all(d);
     }
 }

@@ -139,6 +139,12 @@ pub struct GroupPg {
     /// iteration (0: the pool fills from the noisy episodes alone).
     #[serde(default)]
     pub stall_harvest: u32,
+    /// Weight of the KL divergence to the starting file on every step of the start-seed groups'
+    /// episodes, whether their group carries a gradient or not (0: none). It holds the policy
+    /// where it works while the stall groups move it where it stalls; `anchor` acts on the
+    /// steps with a gradient only, stall groups' included.
+    #[serde(default)]
+    pub fresh_anchor: f32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -161,6 +167,7 @@ impl GroupPg {
             revisit: 0.0,
             stall_groups: 0,
             stall_harvest: 0,
+            fresh_anchor: 0.0,
             seed: 1,
         }
     }
@@ -186,6 +193,9 @@ impl GroupPg {
         }
         if !(self.anchor.is_finite() && self.anchor >= 0.0) {
             return bad("anchor must be finite and at least 0");
+        }
+        if !(self.fresh_anchor.is_finite() && self.fresh_anchor >= 0.0) {
+            return bad("fresh_anchor must be finite and at least 0");
         }
         if !(self.revisit.is_finite() && (0.0..1.0).contains(&self.revisit)) {
             return bad("revisit must be in [0, 1)");
@@ -532,6 +542,7 @@ pub fn run(
             settings,
             &mut actor,
             &episodes,
+            seeds.len(),
             iteration,
             &adam,
             &mut local,
@@ -692,13 +703,15 @@ fn episode(
     }
 }
 
-/// The group advantages, then `epochs` passes of the clipped surrogate (and the anchor) over the
-/// kept steps.
+/// The group advantages, then `epochs` passes of the clipped surrogate (and the anchors) over the
+/// kept steps: those of groups with both outcomes and, with `fresh_anchor`, every step of the
+/// first `seed_groups` groups (the start-seed ones).
 #[allow(clippy::too_many_arguments)]
 fn update(
     s: &GroupPg,
     actor: &mut Actor,
     episodes: &[Episode],
+    seed_groups: usize,
     iteration: u32,
     adam: &AdamConfig,
     local: &mut AdamLocal,
@@ -708,22 +721,37 @@ fn update(
     let reps = s.replicates as usize;
     let d = actor.net.input_dim();
     let (mut inputs, mut noise, mut adv) = (Vec::new(), Vec::new(), Vec::new());
+    // Each kept step's anchor weight.
+    let mut weight = Vec::new();
     let mut mixed = 0u32;
     let mut row = vec![0.0f32; d];
-    for group in episodes.chunks(reps) {
+    for (index, group) in episodes.chunks(reps).enumerate() {
         let wins = group.iter().filter(|e| e.success).count();
-        if wins == 0 || wins == group.len() {
+        let both = wins > 0 && wins < group.len();
+        let fresh = if index < seed_groups {
+            s.fresh_anchor
+        } else {
+            0.0
+        };
+        if !both && fresh == 0.0 {
             continue;
         }
-        mixed += 1;
+        mixed += u32::from(both);
         let mean = wins as f32 / group.len() as f32;
         for e in group {
-            let a = f32::from(u8::from(e.success)) - mean;
+            // A group without both outcomes is kept for its anchor only: no advantage.
+            let a = if both {
+                f32::from(u8::from(e.success)) - mean
+            } else {
+                0.0
+            };
+            let w = if both { s.anchor + fresh } else { fresh };
             for (o, n) in e.obs.iter().zip(&e.noise) {
                 actor.input(o, &mut row);
                 inputs.extend_from_slice(&row);
                 noise.extend_from_slice(n);
                 adv.push(a);
+                weight.push(w);
             }
         }
     }
@@ -796,7 +824,7 @@ fn update(
                     } else {
                         -a * ratio * (mo[j] + ep[j] - mn[j]) * inv_var[j]
                     };
-                    g[j] = (pg + s.anchor * (mn[j] - mc[j]) * inv_var[j]) * scale;
+                    g[j] = (pg + weight[i] * (mn[j] - mc[j]) * inv_var[j]) * scale;
                 }
             }
             actor.net.backward(

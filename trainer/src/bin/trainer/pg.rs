@@ -62,6 +62,10 @@ pub struct PgArgs {
     /// iteration (needs `--stall-groups`).
     #[arg(long)]
     stall_harvest: Option<u32>,
+    /// Weight of the KL divergence to the starting file on every step of the start-seed groups
+    /// (holds the policy where it works while the stall groups move it).
+    #[arg(long)]
+    fresh_anchor: Option<f32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -93,6 +97,7 @@ impl PgArgs {
             revisit: self.revisit.unwrap_or(d.revisit),
             stall_groups: self.stall_groups.unwrap_or(d.stall_groups),
             stall_harvest: self.stall_harvest.unwrap_or(d.stall_harvest),
+            fresh_anchor: self.fresh_anchor.unwrap_or(d.fresh_anchor),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         }
