@@ -1,6 +1,6 @@
-//! Spike (session 31): a policy file with an affine change of its output layer's pre-activations,
-//! `z_j -> g_j * z_j + b_j` for each of the nine action joints (arm 1-6, fingers 1-3), written as a
-//! new file the runtime runs unchanged.
+//! Spike (session 31, docs/experiments.md): a policy file with an affine change of its output
+//! layer's pre-activations, `z_j -> g_j * z_j + b_j` for each of the nine action joints (arm 1-6,
+//! fingers 1-3), written as a new file the runtime runs unchanged.
 //!
 //! ```text
 //! cargo run --release -p dex-trainer --example output_affine_spike -- POLICY.dxpl OUT_DIR \

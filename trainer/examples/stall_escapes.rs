@@ -20,6 +20,11 @@ use dex_trainer::pipeline::stall_starts::StallDetector;
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().skip(1).collect();
+    if a.len() != 6 {
+        anyhow::bail!(
+            "usage: stall_escapes POLICY SEED EPISODES REPLICATES ARM_NOISE FINGER_NOISE"
+        );
+    }
     let bytes = std::fs::read(&a[0]).context("policy")?;
     let (seed, n, reps): (u64, u64, u32) = (a[1].parse()?, a[2].parse()?, a[3].parse()?);
     let (arm_noise, finger_noise): (f32, f32) = (a[4].parse()?, a[5].parse()?);
