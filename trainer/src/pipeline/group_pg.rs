@@ -30,8 +30,9 @@
 //! With `stall_groups` (session 31), each iteration also runs that many groups from stalled
 //! states ([`super::stall_starts`]): simulator snapshots where an episode of the policy got stuck
 //! before its grasp and then failed, harvested from the starting file's noise-free episodes
-//! (`stall_harvest` of them, from their own seed block `+ 8`) and from every iteration's noisy
-//! episodes, the newest [`STALL_POOL`] kept in the checkpoint. Episodes from a stall run from its
+//! (`stall_harvest` of them, from their own seed block `+ 8`) and from the first noisy episode of
+//! each start-seed group that stalled and failed, one per seed and step, the newest
+//! [`STALL_POOL`] kept in the checkpoint. Episodes from a stall run from its
 //! step to the task's last.
 
 use std::path::{Path, PathBuf};
@@ -142,7 +143,8 @@ pub struct GroupPg {
     /// Weight of the KL divergence to the starting file on every step of the start-seed groups'
     /// episodes, whether their group carries a gradient or not (0: none). It holds the policy
     /// where it works while the stall groups move it where it stalls; `anchor` acts on the
-    /// steps with a gradient only, stall groups' included.
+    /// steps with a gradient only, stall groups' included. The kept rows share the minibatches,
+    /// so the policy-gradient term's mean is over more rows (a smaller step at the same `lr`).
     #[serde(default)]
     pub fresh_anchor: f32,
     /// Seed of the starts, the noise and the minibatch order.
@@ -615,8 +617,18 @@ fn remember_hard(hard: &mut Vec<u64>, starts: &[u64], episodes: &[Episode], reps
 }
 
 /// Adds newly found stalls to the pool, keeping the newest [`STALL_POOL`].
+///
+/// A stall of a start seed at a step the pool already holds is not added: with revisits a start
+/// can stall again at the same step, and the stall groups' noise streams are named by the seed,
+/// the step and the iteration, so two such entries picked in one iteration would draw the same
+/// noise.
 fn remember_stalls(pool: &mut Vec<StallStart>, found: Vec<StallStart>) {
-    pool.extend(found);
+    for f in found {
+        let same = |p: &StallStart| p.seed == f.seed && p.snapshot.steps() == f.snapshot.steps();
+        if !pool.iter().any(same) {
+            pool.push(f);
+        }
+    }
     if pool.len() > STALL_POOL {
         let extra = pool.len() - STALL_POOL;
         pool.drain(..extra);
@@ -894,6 +906,27 @@ mod tests {
             success,
             stall: None,
         }
+    }
+
+    #[test]
+    fn the_stall_pool_keeps_one_entry_per_seed_and_step_and_the_newest() {
+        let snap = |steps: u32| {
+            let json = format!("{{\"state\":[0.0],\"steps\":{steps}}}");
+            serde_json::from_str::<crate::env::EnvSnapshot>(&json).unwrap()
+        };
+        let entry = |seed: u64, steps: u32| StallStart {
+            seed,
+            snapshot: snap(steps),
+        };
+        let mut pool = vec![entry(1, 60)];
+        remember_stalls(&mut pool, vec![entry(1, 60), entry(1, 70), entry(2, 60)]);
+        assert_eq!(pool, vec![entry(1, 60), entry(1, 70), entry(2, 60)]);
+        let many: Vec<StallStart> = (0..STALL_POOL as u64 + 5)
+            .map(|s| entry(s + 10, 60))
+            .collect();
+        remember_stalls(&mut pool, many);
+        assert_eq!(pool.len(), STALL_POOL);
+        assert_eq!(pool.last(), Some(&entry(STALL_POOL as u64 + 14, 60)));
     }
 
     #[test]
