@@ -3,6 +3,7 @@
 //! as the controller does for a policy that takes them), for every failed episode the highest brick 1
 //! got, where it ended (height, distance to the pinch site, offset from the stacking site) and the
 //! mean finger angle at the end; the failures are grouped by the predicates that held at some step.
+//! A traced episode also prints the Markov teacher's phase and label at every step.
 //!
 //! ```text
 //! cargo run --release -p dex-trainer --example task_failures -- POLICY.dxpl [--episodes 100] \
@@ -44,6 +45,8 @@ fn main() -> anyhow::Result<()> {
     let mut mlp = Mlp::<1024>::new(&view)?;
     let scene = Scene::load().context("cannot build the MuJoCo scene (scripts/setup-mujoco.sh)")?;
     let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
+    // The Markov teacher's label at each traced step, beside the policy's action.
+    let teacher = dex_trainer::env::MarkovDemonstrator::new(task);
     let mut groups = std::collections::BTreeMap::<String, u32>::new();
     let mut successes = 0;
     for i in 0..args.episodes {
@@ -54,6 +57,7 @@ fn main() -> anyhow::Result<()> {
         let mut last_wrist = obs[5].atan2(obs[11]);
         let out = loop {
             let action = physical_to_env_action(&controller_command(&mut mlp, &obs, true, None)?);
+            let label = (args.trace == Some(i)).then(|| (teacher.phase(&env), teacher.act(&env)));
             let out = env.step(&action)?;
             let p = out.predicates;
             if args.trace == Some(i) {
@@ -70,6 +74,13 @@ fn main() -> anyhow::Result<()> {
                     &action[6..],
                     p
                 );
+                if let Some((phase, l)) = label {
+                    println!(
+                        "      teacher {phase:?} arm {:+.2?} fingers {:+.2?}",
+                        &l[..6],
+                        &l[6..]
+                    );
+                }
             }
             ever_reach |= p.reach;
             ever_grasp |= p.grasp;

@@ -106,6 +106,21 @@ fn settings_out_of_range_are_refused() {
             },
             "stall_groups must be at most 256",
         ),
+        (
+            GroupPg {
+                stall_back: 20,
+                ..small()
+            },
+            "stall_back places the states of stall_groups",
+        ),
+        (
+            GroupPg {
+                stall_groups: 4,
+                stall_back: 101,
+                ..small()
+            },
+            "stall_back must be at most 100",
+        ),
     ];
     for (s, what) in cases {
         let dir = tmp("bad");
@@ -213,6 +228,25 @@ fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
     let e = run(&other, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {}).unwrap_err();
     assert!(matches!(e, GroupPgError::Checkpoint { .. }), "{e}");
     assert_eq!(std::fs::read(resumed.join(CHECKPOINT)).unwrap(), before);
+    // Pool entries kept 20 steps before the stall: longer episodes from them, another file.
+    let early = GroupPg {
+        stall_back: 20,
+        ..stall_run()
+    };
+    let dir = tmp("stall-back");
+    let mut early_reports: Vec<IterationReport> = Vec::new();
+    let file = run(&early, &scene, Task::Stack, &dir, 2, 0, &mut |r| {
+        early_reports.push(r.clone())
+    })
+    .unwrap();
+    let _ = std::fs::remove_dir_all(dir);
+    assert_ne!(file, first, "stall_back changed nothing");
+    assert!(
+        early_reports[0].env_steps >= reports[0].env_steps + 4 * 20,
+        "the stall group's four episodes are 20 steps longer: {:?} against {:?}",
+        early_reports[0],
+        reports[0]
+    );
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }

@@ -1,6 +1,8 @@
 //! Stall states (issue #26, session 31): a Stack clone's episode that stalls before its grasp is
 //! found at its stall, stays there without noise (brick 1 never leaves the table), and its snapshot survives a checkpoint's
-//! round trip; a snapshot that does not fit the scene is refused.
+//! round trip; a snapshot that does not fit the scene is refused. Kept some steps before the
+//! stall (session 32), the state is that many steps earlier on the same episode: the noise-free
+//! policy run from it comes to the same stalled state.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -27,7 +29,7 @@ fn a_stalled_episode_is_found_at_its_stall_and_stays_stuck_without_noise() {
     let scene = Scene::load().unwrap();
     let file = stack_clone();
     let seeds = [episode_seed(DEV, 12), episode_seed(DEV, 0)];
-    let (found, steps) = harvest(&file, &scene, Task::Stack, &seeds, 2).unwrap();
+    let (found, steps) = harvest(&file, &scene, Task::Stack, &seeds, 0, 2).unwrap();
     assert_eq!(steps, 300, "two whole episodes");
     assert_eq!(found.len(), 1, "only the failed episode stalls");
     let stall = &found[0];
@@ -68,6 +70,40 @@ fn a_stalled_episode_is_found_at_its_stall_and_stays_stuck_without_noise() {
         other.restore(&back.snapshot).unwrap(),
         env.restore(&stall.snapshot).unwrap()
     );
+}
+
+#[test]
+fn a_state_kept_before_the_stall_leads_back_to_it() {
+    let scene = Scene::load().unwrap();
+    let file = stack_clone();
+    let seeds = [episode_seed(DEV, 12)];
+    let (at, _) = harvest(&file, &scene, Task::Stack, &seeds, 0, 1).unwrap();
+    let (before, steps) = harvest(&file, &scene, Task::Stack, &seeds, 20, 1).unwrap();
+    assert_eq!(steps, 150);
+    assert_eq!((at.len(), before.len()), (1, 1));
+    let (at, before) = (&at[0].snapshot, &before[0].snapshot);
+    assert_eq!(before.steps() + 20, at.steps(), "20 steps before the stall");
+    assert_ne!(before, at);
+
+    // Twenty noise-free steps from the earlier state reach the stalled state itself.
+    let aligned = dex_runtime::aligned::aligned_copy(&file);
+    let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes()).unwrap();
+    let mut mlp = dex_runtime::Mlp::<1024>::new(&view).unwrap();
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(Task::Stack));
+    let mut o = env.restore(before).unwrap();
+    for _ in 0..20 {
+        let a = physical_to_env_action(&controller_command(&mut mlp, &o, true, None).unwrap());
+        o = env.step(&a).unwrap().observation;
+    }
+    let reached = env.snapshot();
+    let mut there = JacoEnv::new(&scene, EnvConfig::new(Task::Stack));
+    assert_eq!(there.restore(at).unwrap(), o, "the same observation");
+    assert_eq!(reached.steps(), at.steps());
+    let pinch = |e: &JacoEnv| e.reward_state().pinch;
+    let gap = (0..3)
+        .map(|k| (pinch(&env)[k] - pinch(&there)[k]).abs())
+        .fold(0.0, f64::max);
+    assert!(gap < 1e-9, "the hand is {gap} m from the stalled state");
 }
 
 #[test]

@@ -106,7 +106,8 @@ fn act_name(a: Activation) -> &'static str {
     }
 }
 
-pub(crate) fn file_act(a: dex_policy::Activation) -> Activation {
+/// The trainer's activation for a policy file's layer activation.
+pub fn file_act(a: dex_policy::Activation) -> Activation {
     match a {
         dex_policy::Activation::Relu => Activation::Relu,
         dex_policy::Activation::Tanh => Activation::Tanh,

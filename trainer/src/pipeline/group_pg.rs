@@ -55,7 +55,7 @@ use crate::learn::bc::ObsScaling;
 use crate::learn::nets::{LayerSpec, Mlp, MlpScratch, MlpSpec};
 use crate::learn::norm::Normalizer;
 use crate::learn::{LearnError, Rng};
-use crate::pipeline::stall_starts::{StallDetector, StallStart, harvest};
+use crate::pipeline::stall_starts::{StallStart, StallWatch, harvest};
 
 /// The checkpoint of a run folder (parameters, Adam's moments, the next iteration).
 pub const CHECKPOINT: &str = "group-pg.ckpt";
@@ -147,6 +147,11 @@ pub struct GroupPg {
     /// so the policy-gradient term's mean is over more rows (a smaller step at the same `lr`).
     #[serde(default)]
     pub fresh_anchor: f32,
+    /// Steps before each stall that a pool entry keeps (0: the stalled state itself). The
+    /// detector needs ten still steps, so from about 12 on an entry lies in the approach, where
+    /// a noise-free policy can avoid the stall rather than escape it (session 32).
+    #[serde(default)]
+    pub stall_back: u32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -170,6 +175,7 @@ impl GroupPg {
             stall_groups: 0,
             stall_harvest: 0,
             fresh_anchor: 0.0,
+            stall_back: 0,
             seed: 1,
         }
     }
@@ -207,6 +213,12 @@ impl GroupPg {
         }
         if self.stall_harvest > 0 && self.stall_groups == 0 {
             return bad("stall_harvest finds states for stall_groups, which is 0");
+        }
+        if self.stall_back > 0 && self.stall_groups == 0 {
+            return bad("stall_back places the states of stall_groups, which is 0");
+        }
+        if self.stall_back > MAX_STALL_BACK {
+            return bad("stall_back must be at most 100 steps");
         }
         if self.stall_harvest > 100_000 {
             return bad("stall_harvest must be at most 100000 episodes");
@@ -323,6 +335,10 @@ struct Checkpoint {
     hard: Vec<u64>,
     stalls: Vec<StallStart>,
 }
+
+/// Most steps [`GroupPg::stall_back`] may reach back (each watched episode keeps that many
+/// snapshots).
+pub const MAX_STALL_BACK: u32 = 100;
 
 /// Stalled states kept for the stall groups (the newest).
 pub const STALL_POOL: usize = 256;
@@ -500,7 +516,8 @@ pub fn run(
         let seeds: Vec<u64> = (0..settings.stall_harvest)
             .map(|i| settings.harvest_seed(i))
             .collect();
-        let (found, steps) = harvest(&file, scene, task, &seeds, threads)?;
+        let back = settings.stall_back as usize;
+        let (found, steps) = harvest(&file, scene, task, &seeds, back, threads)?;
         env_steps += steps;
         remember_stalls(&mut stalls, found);
     }
@@ -685,8 +702,9 @@ fn episode(
     rng: &mut Rng,
 ) -> Result<Episode, GroupPgError> {
     let (mut obs, mut noise) = (Vec::with_capacity(160), Vec::with_capacity(160));
-    let mut detector = StallDetector::new();
-    let mut stall = None;
+    // Only the start-seed episodes feed the pool.
+    let watching = seed.is_some() && s.stall_groups > 0;
+    let mut watch = StallWatch::new(s.stall_back as usize);
     loop {
         let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
         let e: [f32; ACT_DIM] = std::array::from_fn(|j| rng.normal(0.0, s.sigma(j)));
@@ -695,14 +713,17 @@ fn episode(
         }
         obs.push(std::array::from_fn(|i| quantise_observation(i, o[i])));
         noise.push(e);
+        if watching {
+            watch.before_step(env);
+        }
         let out = env.step(&a).map_err(EvalError::from)?;
-        if seed.is_some() && s.stall_groups > 0 && detector.observe(env, &out) {
-            stall = Some(env.snapshot());
+        if watching {
+            watch.after_step(env, &out);
         }
         o = out.observation;
         if out.done {
             let stall = seed
-                .zip(stall)
+                .zip(watch.into_found())
                 .filter(|_| !out.success)
                 .map(|(seed, snapshot)| StallStart { seed, snapshot });
             return Ok(Episode {

@@ -79,25 +79,80 @@ impl StallDetector {
     }
 }
 
+/// Watches one episode for its stall and keeps the state `back` steps before it: the state at
+/// the stall's detection (`back` 0), or the one from which the hand was still descending (the
+/// detector needs [`WINDOW`] still steps, so `back` above [`WINDOW`] reaches back into the
+/// approach, where a policy can still avoid the stall rather than escape it).
+#[derive(Debug, Clone)]
+pub struct StallWatch {
+    detector: StallDetector,
+    back: usize,
+    ring: VecDeque<EnvSnapshot>,
+    found: Option<EnvSnapshot>,
+}
+
+impl StallWatch {
+    /// A watch for a new episode.
+    pub fn new(back: usize) -> Self {
+        Self {
+            detector: StallDetector::new(),
+            back,
+            ring: VecDeque::with_capacity(back),
+            found: None,
+        }
+    }
+
+    /// Call before each step with the state the step starts from.
+    pub fn before_step(&mut self, env: &JacoEnv) {
+        if self.back == 0 || self.found.is_some() {
+            return;
+        }
+        if self.ring.len() == self.back {
+            self.ring.pop_front();
+        }
+        self.ring.push_back(env.snapshot());
+    }
+
+    /// Call after each step with its outcome; true at the stall.
+    pub fn after_step(&mut self, env: &JacoEnv, out: &StepOutcome) -> bool {
+        if !self.detector.observe(env, out) {
+            return false;
+        }
+        // `ring` holds the states before the last `back` steps (fewer near the episode's start).
+        self.found = match self.ring.front() {
+            Some(s) if self.back > 0 => Some(s.clone()),
+            _ => Some(env.snapshot()),
+        };
+        true
+    }
+
+    /// The kept state, if the episode stalled.
+    pub fn into_found(self) -> Option<EnvSnapshot> {
+        self.found
+    }
+}
+
 /// A stalled state to start episodes from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StallStart {
     /// The start seed of the episode that stalled (names the noise streams of the episodes run
     /// from it).
     pub seed: u64,
-    /// The simulation at the stall (its step counter included: episodes from it end at the
-    /// task's last step, as the stalled one would have).
+    /// The simulation at the stall, or some steps before it ([`StallWatch`]; its step counter
+    /// included: episodes from it end at the task's last step, as the stalled one would have).
     pub snapshot: EnvSnapshot,
 }
 
 /// The stalls of a policy file's noise-free episodes from `seeds` (through the runtime with CAN
 /// quantisation, as `trainer eval` runs it), in seed order: one per episode that stalled and then
-/// failed; and the environment steps run.
+/// failed, the state `back` steps before the stall ([`StallWatch`]); and the environment steps
+/// run.
 pub fn harvest(
     policy: &[u8],
     scene: &Scene,
     task: Task,
     seeds: &[u64],
+    back: usize,
     threads: usize,
 ) -> Result<(Vec<StallStart>, u64), EvalError> {
     let aligned = dex_runtime::aligned::aligned_copy(policy);
@@ -111,16 +166,15 @@ pub fn harvest(
         },
         |(mlp, env), i| -> Result<(Option<StallStart>, u64), EvalError> {
             let mut o = env.reset(seeds[i])?;
-            let mut detector = StallDetector::new();
-            let mut stall = None;
+            let mut watch = StallWatch::new(back);
             loop {
                 let a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
+                watch.before_step(env);
                 let out = env.step(&a)?;
-                if detector.observe(env, &out) {
-                    stall = Some(env.snapshot());
-                }
+                watch.after_step(env, &out);
                 o = out.observation;
                 if out.done {
+                    let stall = watch.into_found();
                     let found = stall.filter(|_| !out.success).map(|snapshot| StallStart {
                         seed: seeds[i],
                         snapshot,

@@ -66,6 +66,9 @@ pub struct PgArgs {
     /// (holds the policy where it works while the stall groups move it).
     #[arg(long)]
     fresh_anchor: Option<f32>,
+    /// Steps before each stall that the pool keeps (0: the stalled state; needs `--stall-groups`).
+    #[arg(long)]
+    stall_back: Option<u32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -98,6 +101,7 @@ impl PgArgs {
             stall_groups: self.stall_groups.unwrap_or(d.stall_groups),
             stall_harvest: self.stall_harvest.unwrap_or(d.stall_harvest),
             fresh_anchor: self.fresh_anchor.unwrap_or(d.fresh_anchor),
+            stall_back: self.stall_back.unwrap_or(d.stall_back),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         }
