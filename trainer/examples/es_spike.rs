@@ -23,13 +23,10 @@ use dex_runtime::Mlp;
 use dex_trainer::env::seeds::episode_seed;
 use dex_trainer::env::{EnvConfig, EnvSnapshot, JacoEnv, Scene, Task};
 use dex_trainer::evaluate::{controller_command, physical_to_env_action};
-use dex_trainer::files::export::{ExportInfo, export_scaled_actor};
-use dex_trainer::files::policy_import::{file_act, normalised_actor_from_policy};
+use dex_trainer::files::export::ExportInfo;
 use dex_trainer::learn::Rng;
 use dex_trainer::learn::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
-use dex_trainer::learn::bc::ObsScaling;
-use dex_trainer::learn::nets::{LayerSpec, Mlp as NetMlp, MlpSpec};
-use dex_trainer::learn::norm::Normalizer;
+use dex_trainer::pipeline::file_actor::FileActor;
 use dex_trainer::pipeline::stall_starts::StallDetector;
 use std::path::Path;
 
@@ -90,11 +87,10 @@ fn anchor_inputs(
     seed: u64,
     episodes: u64,
     threads: usize,
-    net: &NetMlp,
-    scaling: &ObsScaling,
+    actor: &FileActor,
 ) -> anyhow::Result<Vec<f32>> {
     let aligned = dex_runtime::testkit::aligned_copy(file);
-    let d = net.input_dim();
+    let d = actor.net.input_dim();
     let per = dex_trainer::env::parallel::map_in_order(
         episodes as usize,
         threads,
@@ -110,10 +106,9 @@ fn anchor_inputs(
                 let q: [f32; 44] = std::array::from_fn(|k| {
                     dex_runtime::can::messages::quantise_observation(k, o[k])
                 });
-                let mut buf = [0.0f32; dex_runtime::features::INPUT_MAX];
                 let start = rows.len();
-                rows.extend_from_slice(dex_runtime::features::policy_input(&q, d, &mut buf));
-                scaling.apply_rows(&mut rows[start..]);
+                rows.resize(start + d, 0.0);
+                actor.input(&q, &mut rows[start..]);
                 let act = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
                 let out = env.step(&act)?;
                 o = out.observation;
@@ -194,27 +189,7 @@ fn main() -> anyhow::Result<()> {
     let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes())?;
     let body = view.body();
     let task = Task::from(body.task);
-    let spec = MlpSpec {
-        input: body.obs_dim(),
-        layers: body
-            .layers
-            .iter()
-            .map(|l| LayerSpec {
-                size: usize::from(l.outputs),
-                activation: file_act(l.activation),
-                layer_norm: false,
-            })
-            .collect(),
-    };
-    let net = NetMlp::new(spec, dex_trainer::learn::kernel::Engine::default())?;
-    let imported = normalised_actor_from_policy(&file, task, &net)?;
-    let scaling = ObsScaling {
-        norm: Normalizer {
-            mean: imported.mean.clone(),
-            inv_std: imported.inv_std.clone(),
-        },
-        clip: body.obs_clip,
-    };
+    let actor = FileActor::from_file(&file, task)?;
     let info = ExportInfo {
         task,
         seed: 0,
@@ -222,7 +197,7 @@ fn main() -> anyhow::Result<()> {
         success_rate: None,
         eval_episodes: 0,
     };
-    let export = |p: &[f32]| export_scaled_actor(&net, p, &scaling, &info);
+    let export = |p: &[f32]| actor.export_params(p, &info);
     let scene = Scene::load()?;
     let train = cached(&out.join("train.bin"), || {
         stalled_states(&scene, task, &file, train_seed, train_n, back, threads)
@@ -238,19 +213,23 @@ fn main() -> anyhow::Result<()> {
         held_seed + 5000,
         anchor_episodes,
         threads,
-        &net,
-        &scaling,
+        &actor,
     )?;
-    let d = net.input_dim();
+    let d = actor.net.input_dim();
     let n_rows = rows.len() / d;
     const CHUNK: usize = 1024;
-    let mut scratch = net.scratch(CHUNK);
+    let mut scratch = actor.net.scratch(CHUNK);
     let mut clone_out = Vec::with_capacity(n_rows * 9);
     for c in rows.chunks(CHUNK * d) {
-        clone_out.extend_from_slice(net.forward(&imported.params, c, c.len() / d, &mut scratch)?);
+        clone_out.extend_from_slice(actor.net.forward(
+            &actor.clone,
+            c,
+            c.len() / d,
+            &mut scratch,
+        )?);
     }
     println!("{n_rows} anchor states");
-    let theta0 = imported.params.clone();
+    let theta0 = actor.clone.clone();
     let mut theta = theta0.clone();
     let n = theta.len();
     let adam = AdamConfig {
@@ -321,7 +300,7 @@ fn main() -> anyhow::Result<()> {
             let mut part = vec![0.0f32; n];
             for (ci, c) in rows.chunks(CHUNK * d).enumerate() {
                 let r = c.len() / d;
-                let mu = net.forward(&theta, c, r, &mut scratch)?.to_vec();
+                let mu = actor.net.forward(&theta, c, r, &mut scratch)?.to_vec();
                 let mut dout = vec![0.0f32; r * 9];
                 for i in 0..r {
                     for j in 0..9 {
@@ -331,7 +310,9 @@ fn main() -> anyhow::Result<()> {
                         dout[i * 9 + j] = anchor * diff / (sd * sd) / n_rows as f32;
                     }
                 }
-                net.backward(&theta, c, &mut scratch, &dout, Some(&mut part), None)?;
+                actor
+                    .net
+                    .backward(&theta, c, &mut scratch, &dout, Some(&mut part), None)?;
                 for (g, p) in grad.iter_mut().zip(&part) {
                     *g += p;
                 }

@@ -19,12 +19,9 @@ use dex_runtime::Mlp;
 use dex_trainer::env::seeds::episode_seed;
 use dex_trainer::env::{EnvConfig, EnvSnapshot, JacoEnv, MarkovDemonstrator, Scene, Task};
 use dex_trainer::evaluate::{controller_command, physical_to_env_action};
-use dex_trainer::files::export::{ExportInfo, export_scaled_actor};
-use dex_trainer::files::policy_import::{file_act, normalised_actor_from_policy};
+use dex_trainer::files::export::ExportInfo;
 use dex_trainer::learn::Rng;
-use dex_trainer::learn::bc::ObsScaling;
-use dex_trainer::learn::nets::{LayerSpec, Mlp as NetMlp, MlpSpec};
-use dex_trainer::learn::norm::Normalizer;
+use dex_trainer::pipeline::file_actor::FileActor;
 use dex_trainer::pipeline::stall_starts::StallDetector;
 
 fn run_from(
@@ -72,27 +69,7 @@ fn main() -> anyhow::Result<()> {
     let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes())?;
     let body = view.body();
     let task = Task::from(body.task);
-    let spec = MlpSpec {
-        input: body.obs_dim(),
-        layers: body
-            .layers
-            .iter()
-            .map(|l| LayerSpec {
-                size: usize::from(l.outputs),
-                activation: file_act(l.activation),
-                layer_norm: false,
-            })
-            .collect(),
-    };
-    let net = NetMlp::new(spec, dex_trainer::learn::kernel::Engine::default())?;
-    let imported = normalised_actor_from_policy(&file, task, &net)?;
-    let scaling = ObsScaling {
-        norm: Normalizer {
-            mean: imported.mean.clone(),
-            inv_std: imported.inv_std.clone(),
-        },
-        clip: body.obs_clip,
-    };
+    let actor = FileActor::from_file(&file, task)?;
     let scene = Scene::load()?;
     // 1. Stalled failures, with the state `back` steps earlier.
     let found = dex_trainer::env::parallel::map_in_order(
@@ -178,7 +155,7 @@ fn main() -> anyhow::Result<()> {
     let mut rng = Rng::seed_from_u64(0x5e5);
     let files: Vec<Vec<u8>> = (0..k)
         .map(|_| {
-            let p: Vec<f32> = imported
+            let p: Vec<f32> = actor
                 .params
                 .iter()
                 .map(|&x| x + rng.normal(0.0, sigma))
@@ -190,7 +167,7 @@ fn main() -> anyhow::Result<()> {
                 success_rate: None,
                 eval_episodes: 0,
             };
-            export_scaled_actor(&net, &p, &scaling, &info)
+            actor.export_params(&p, &info)
         })
         .collect::<Result<_, _>>()?;
     // 3. Teacher (item j = 0) and perturbations (j >= 1), from both states of every stall.

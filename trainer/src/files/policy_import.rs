@@ -106,8 +106,7 @@ fn act_name(a: Activation) -> &'static str {
     }
 }
 
-/// The trainer's activation for a policy file's layer activation.
-pub fn file_act(a: dex_policy::Activation) -> Activation {
+pub(crate) fn file_act(a: dex_policy::Activation) -> Activation {
     match a {
         dex_policy::Activation::Relu => Activation::Relu,
         dex_policy::Activation::Tanh => Activation::Tanh,

@@ -39,7 +39,6 @@ use std::path::{Path, PathBuf};
 
 use dex_runtime::Mlp as RuntimeMlp;
 use dex_runtime::can::messages::quantise_observation;
-use dex_runtime::features::{INPUT_MAX, policy_input};
 use dex_runtime::interface::{ACT_DIM, OBS_DIM};
 use dex_runtime::kinematics::ARM_JOINTS;
 use serde::{Deserialize, Serialize};
@@ -48,13 +47,12 @@ use crate::env::seeds::{DEMO_SEED, episode_seed};
 use crate::env::{EnvConfig, JacoEnv, Scene, Task};
 use crate::evaluate::{EVAL_WIDTH, EvalError, controller_command, physical_to_env_action};
 use crate::files::atomic_write::write_atomic;
-use crate::files::export::{ExportError, ExportInfo, export_scaled_actor};
-use crate::files::policy_import::{ImportError, file_act, normalised_actor_from_policy};
+use crate::files::export::{ExportError, ExportInfo};
+use crate::files::policy_import::ImportError;
 use crate::learn::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
-use crate::learn::bc::ObsScaling;
-use crate::learn::nets::{LayerSpec, Mlp, MlpScratch, MlpSpec};
-use crate::learn::norm::Normalizer;
+use crate::learn::nets::MlpScratch;
 use crate::learn::{LearnError, Rng};
+use crate::pipeline::file_actor::{FileActor, FileActorError};
 use crate::pipeline::stall_starts::{StallStart, StallWatch, harvest};
 
 /// The checkpoint of a run folder (parameters, Adam's moments, the next iteration).
@@ -91,6 +89,9 @@ pub enum GroupPgError {
     /// The learner refused a shape.
     #[error(transparent)]
     Learn(#[from] LearnError),
+    /// The starting file is not an actor, or the actor not a file.
+    #[error(transparent)]
+    Actor(#[from] FileActorError),
     /// The checkpoint does not decode or is of another start.
     #[error("checkpoint {path}: {why}")]
     Checkpoint {
@@ -360,83 +361,6 @@ enum Start<'a> {
     Stall(&'a StallStart, u64),
 }
 
-/// The actor being fine-tuned, in the starting file's input coordinates.
-struct Actor {
-    net: Mlp,
-    params: Vec<f32>,
-    clone: Vec<f32>,
-    scaling: ObsScaling,
-}
-
-impl Actor {
-    fn from_file(file: &[u8], task: Task) -> Result<Self, GroupPgError> {
-        let aligned = dex_runtime::aligned::aligned_copy(file);
-        let view = crate::evaluate::decode_jaco_policy(aligned.as_bytes())?;
-        let body = view.body();
-        let spec = MlpSpec {
-            input: body.obs_dim(),
-            layers: body
-                .layers
-                .iter()
-                .map(|l| LayerSpec {
-                    size: usize::from(l.outputs),
-                    activation: file_act(l.activation),
-                    layer_norm: false,
-                })
-                .collect(),
-        };
-        let clip = body.obs_clip;
-        let net = Mlp::new(spec, crate::learn::kernel::Engine::default())?;
-        let imported = normalised_actor_from_policy(file, task, &net)?;
-        Ok(Actor {
-            net,
-            clone: imported.params.clone(),
-            params: imported.params,
-            scaling: ObsScaling {
-                norm: Normalizer {
-                    mean: imported.mean,
-                    inv_std: imported.inv_std,
-                },
-                clip,
-            },
-        })
-    }
-
-    /// The network's input for a (quantised) observation: the task features when it takes them,
-    /// normalised and clipped as the file does.
-    fn input(&self, obs: &[f32; OBS_DIM], out: &mut [f32]) {
-        let mut buf = [0.0f32; INPUT_MAX];
-        out.copy_from_slice(policy_input(obs, self.net.input_dim(), &mut buf));
-        self.scaling.apply_rows(out);
-    }
-
-    fn export(&self, info: &ExportInfo) -> Result<Vec<u8>, GroupPgError> {
-        Ok(export_scaled_actor(
-            &self.net,
-            &self.params,
-            &self.scaling,
-            info,
-        )?)
-    }
-
-    /// `params`' outputs on every row of `inputs`, in chunks of the scratch's capacity.
-    fn outputs(
-        &self,
-        params: &[f32],
-        inputs: &[f32],
-        scratch: &mut MlpScratch,
-    ) -> Result<Vec<f32>, GroupPgError> {
-        let d = self.net.input_dim();
-        let cap = scratch.max_batch();
-        let mut out = Vec::with_capacity(inputs.len() / d * ACT_DIM);
-        for chunk in inputs.chunks(cap * d) {
-            let rows = chunk.len() / d;
-            out.extend_from_slice(self.net.forward(params, chunk, rows, scratch)?);
-        }
-        Ok(out)
-    }
-}
-
 /// Runs (or resumes) a fine-tune in `dir`: the checkpoint, one progress line and the latest
 /// actor after every iteration, `policy-NNNN.dxpl` every `save_every` iterations (0: none);
 /// calls `on_iteration` with each iteration's report.
@@ -455,7 +379,7 @@ pub fn run(
         move |source| GroupPgError::Io { path, source }
     };
     let file = std::fs::read(&settings.policy).map_err(io(&settings.policy))?;
-    let mut actor = Actor::from_file(&file, task)?;
+    let mut actor = FileActor::from_file(&file, task)?;
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let n = actor.params.len();
     let mut local = AdamLocal::new(n);
@@ -742,7 +666,7 @@ fn episode(
 #[allow(clippy::too_many_arguments)]
 fn update(
     s: &GroupPg,
-    actor: &mut Actor,
+    actor: &mut FileActor,
     episodes: &[Episode],
     seed_groups: usize,
     iteration: u32,

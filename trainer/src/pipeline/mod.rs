@@ -13,12 +13,14 @@
 //!   their executed actions (`trainer imitate --self-imitation`).
 //! - [`rollout_teacher`]: the winning branches of a policy file's failed episodes, found by
 //!   rollouts from simulator snapshots, as cloning data (`trainer imitate --rollout-teacher`).
+//! - [`file_actor`]: a policy file's network as a trainable actor and back (the fine-tunes').
 //! - [`run_lock`]: one trainer per run folder (an advisory lock the OS drops with the process).
 //! - [`run_plots`]: a run folder's learning curves, drawn by [`plot`] (mean and min-max band over
 //!   seeds, like the paper's figures).
 
 pub mod clone_members;
 pub mod cloning;
+pub mod file_actor;
 pub mod group_pg;
 pub mod imitation;
 pub mod plot;
