@@ -9,7 +9,7 @@
 //!     HELD_N PAIRS SIGMA LR ITERATIONS BACK L2 THREADS OUT_DIR ANCHOR ANCHOR_EPISODES
 //! ```
 //!
-//! States: `BACK` steps before each stall of a stalled failure among the noise-free episodes from
+//! States: `BACK + 1` steps before each detected stall of a stalled failure among the noise-free episodes from
 //! `episode_seed(TRAIN_SEED, i)` (training) and `episode_seed(HELD_SEED, i)` (held out), cached in
 //! OUT_DIR. Each iteration: PAIRS antithetic perturbations, each run noise-free from every
 //! training state to the episode's end; fitness its success rate; gradient `sum_k (F_k - mean F)
@@ -27,11 +27,13 @@ use dex_trainer::files::export::ExportInfo;
 use dex_trainer::learn::Rng;
 use dex_trainer::learn::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
 use dex_trainer::pipeline::file_actor::FileActor;
-use dex_trainer::pipeline::stall_starts::StallDetector;
+use dex_trainer::pipeline::stall_starts::harvest;
 use std::path::Path;
 
 type States = Vec<(u64, EnvSnapshot)>;
 
+/// The states `back + 1` steps before the detected stalls of the noise-free episodes of `file`
+/// that stall and fail (`stall_starts::harvest`).
 fn stalled_states(
     scene: &Scene,
     task: Task,
@@ -41,40 +43,9 @@ fn stalled_states(
     back: usize,
     threads: usize,
 ) -> anyhow::Result<States> {
-    let aligned = dex_runtime::testkit::aligned_copy(file);
-    let found = dex_trainer::env::parallel::map_in_order(
-        n as usize,
-        threads,
-        || -> anyhow::Result<_> {
-            let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes())?;
-            let mlp = Mlp::<1024>::new(&view)?;
-            Ok((mlp, JacoEnv::new(scene, EnvConfig::new(task))))
-        },
-        |(mlp, env), i| -> anyhow::Result<Option<(u64, EnvSnapshot)>> {
-            let s = episode_seed(seed, i as u64);
-            let mut o = env.reset(s)?;
-            let mut det = StallDetector::new();
-            let mut ring: std::collections::VecDeque<EnvSnapshot> = Default::default();
-            let mut stall = None;
-            loop {
-                ring.push_back(env.snapshot());
-                if ring.len() > back + 1 {
-                    ring.pop_front();
-                }
-                let act = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
-                let out = env.step(&act)?;
-                if det.observe(env, &out) {
-                    stall = Some(ring[0].clone());
-                }
-                o = out.observation;
-                if out.done {
-                    return Ok(stall.filter(|_| !out.success).map(|b| (s, b)));
-                }
-            }
-        },
-        &|| {},
-    )?;
-    Ok(found.into_iter().flatten().collect())
+    let seeds: Vec<u64> = (0..n).map(|i| episode_seed(seed, i)).collect();
+    let (found, _) = harvest(file, scene, task, &seeds, back + 1, threads)?;
+    Ok(found.into_iter().map(|s| (s.seed, s.snapshot)).collect())
 }
 
 /// The network inputs (normalised, clipped) of the CAN-quantised observations of `episodes`
@@ -190,13 +161,7 @@ fn main() -> anyhow::Result<()> {
     let body = view.body();
     let task = Task::from(body.task);
     let actor = FileActor::from_file(&file, task)?;
-    let info = ExportInfo {
-        task,
-        seed: 0,
-        transitions: 0,
-        success_rate: None,
-        eval_episodes: 0,
-    };
+    let info = ExportInfo::bare(task);
     let export = |p: &[f32]| actor.export_params(p, &info);
     let scene = Scene::load()?;
     let train = cached(&out.join("train.bin"), || {

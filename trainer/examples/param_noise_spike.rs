@@ -7,13 +7,16 @@
 //!
 //! ```text
 //! cargo run --release -p dex-trainer --example param_noise_spike -- POLICY SEED EPISODES \
-//!     PERTURBATIONS SIGMA BACK THREADS
+//!     PERTURBATIONS SIGMA BACK THREADS [tuck-first]
 //! ```
 //!
 //! Noise-free episodes from `episode_seed(SEED, i)`; for each one that stalls and fails, the
-//! state BACK steps before the stall was detected and the stalled state itself; from both, the
-//! Markov teacher, and PERTURBATIONS copies of the file with N(0, SIGMA^2) added to every
-//! parameter (of the network in its normalised coordinates), each run noise-free to the end.
+//! state BACK + 1 steps before the stall was detected and the stalled state itself; from both, the
+//! Markov teacher (with `tuck-first`: the teacher that holds the hand up until a finger over brick
+//! 2 is tucked), and PERTURBATIONS copies of the file with N(0, SIGMA^2) added to every
+//! parameter (of the network in its normalised coordinates), each run noise-free to the end. At
+//! both states it first prints the teacher's phase and label beside the file's action, and the
+//! MuJoCo contacts (as body pairs).
 use anyhow::Context;
 use dex_runtime::Mlp;
 use dex_trainer::env::seeds::episode_seed;
@@ -22,16 +25,15 @@ use dex_trainer::evaluate::{controller_command, physical_to_env_action};
 use dex_trainer::files::export::ExportInfo;
 use dex_trainer::learn::Rng;
 use dex_trainer::pipeline::file_actor::FileActor;
-use dex_trainer::pipeline::stall_starts::StallDetector;
+use dex_trainer::pipeline::stall_starts::StallWatch;
 
 fn run_from(
     env: &mut JacoEnv,
     snap: &EnvSnapshot,
     policy: Option<&[u8]>,
-    task: Task,
+    teacher: MarkovDemonstrator,
 ) -> anyhow::Result<bool> {
     let mut o = env.restore(snap)?;
-    let teacher = MarkovDemonstrator::new(task);
     let aligned = policy.map(dex_runtime::testkit::aligned_copy);
     let view = match &aligned {
         Some(a) => Some(dex_trainer::evaluate::decode_jaco_policy(a.as_bytes())?),
@@ -56,11 +58,12 @@ fn run_from(
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().skip(1).collect();
-    if a.len() != 7 {
+    if !(7..=8).contains(&a.len()) || a.get(7).is_some_and(|t| t != "tuck-first") {
         anyhow::bail!(
-            "usage: param_noise_spike POLICY SEED EPISODES PERTURBATIONS SIGMA BACK THREADS"
+            "usage: param_noise_spike POLICY SEED EPISODES PERTURBATIONS SIGMA BACK THREADS [tuck-first]"
         );
     }
+    let tuck_first = a.len() == 8;
     let file = std::fs::read(&a[0]).context("policy")?;
     let (seed, n, k): (u64, u64, usize) = (a[1].parse()?, a[2].parse()?, a[3].parse()?);
     let sigma: f32 = a[4].parse()?;
@@ -69,6 +72,7 @@ fn main() -> anyhow::Result<()> {
     let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes())?;
     let body = view.body();
     let task = Task::from(body.task);
+    let teacher = MarkovDemonstrator::new(task).with_tuck_first(tuck_first);
     let actor = FileActor::from_file(&file, task)?;
     let scene = Scene::load()?;
     // 1. Stalled failures, with the state `back` steps earlier.
@@ -81,24 +85,22 @@ fn main() -> anyhow::Result<()> {
         },
         |(mlp, env), i| -> anyhow::Result<Option<(u64, EnvSnapshot, EnvSnapshot, u32)>> {
             let mut o = env.reset(episode_seed(seed, i as u64))?;
-            let mut det = StallDetector::new();
-            let mut ring: std::collections::VecDeque<EnvSnapshot> = Default::default();
+            let mut watch = StallWatch::new(back + 1);
             let mut stall = None;
             loop {
-                ring.push_back(env.snapshot());
-                if ring.len() > back + 1 {
-                    ring.pop_front();
-                }
                 let act = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
+                watch.before_step(env);
                 let out = env.step(&act)?;
-                if det.observe(env, &out) {
-                    stall = Some((ring[0].clone(), env.snapshot(), env.steps_taken()));
+                if watch.after_step(env, &out) {
+                    stall = Some((env.snapshot(), env.steps_taken()));
                 }
                 o = out.observation;
                 if out.done {
+                    let before = watch.into_found();
                     return Ok(stall
+                        .zip(before)
                         .filter(|_| !out.success)
-                        .map(|(b, s, t)| (i as u64, b, s, t)));
+                        .map(|((s, t), b)| (i as u64, b, s, t)));
                 }
             }
         },
@@ -109,7 +111,6 @@ fn main() -> anyhow::Result<()> {
     {
         let mut env = JacoEnv::new(&scene, EnvConfig::new(task));
         let mut mlp = Mlp::<1024>::new(&view)?;
-        let teacher = MarkovDemonstrator::new(task);
         for (i, b, st, t) in &stalls {
             for (name, snap) in [("before", b), ("stall", st)] {
                 let o = env.restore(snap)?;
@@ -160,13 +161,7 @@ fn main() -> anyhow::Result<()> {
                 .iter()
                 .map(|&x| x + rng.normal(0.0, sigma))
                 .collect();
-            let info = ExportInfo {
-                task,
-                seed: 0,
-                transitions: 0,
-                success_rate: None,
-                eval_episodes: 0,
-            };
+            let info = ExportInfo::bare(task);
             actor.export_params(&p, &info)
         })
         .collect::<Result<_, _>>()?;
@@ -182,7 +177,7 @@ fn main() -> anyhow::Result<()> {
             let (_, b, st, _) = &stalls[s];
             let snap = if from_stall { st } else { b };
             let policy = (j > 0).then(|| files[j - 1].as_slice());
-            run_from(env, snap, policy, task)
+            run_from(env, snap, policy, teacher)
         },
         &|| {},
     )?;

@@ -65,13 +65,7 @@ fn export(t: &Trainer, task: Task, precision: Precision) -> Exported {
     let mean: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(-1.0, 1.0)).collect();
     let inv_std: Vec<f32> = (0..OBS_DIM).map(|_| rng.uniform(0.5, 3.0)).collect();
     let (net, params) = t.actor();
-    let info = ExportInfo {
-        task,
-        seed: 0,
-        transitions: 0,
-        success_rate: None,
-        eval_episodes: 0,
-    };
+    let info = ExportInfo::bare(task);
     let file = export_actor_with(
         net,
         params,

@@ -73,6 +73,20 @@ pub struct ExportInfo {
     pub eval_episodes: u32,
 }
 
+impl ExportInfo {
+    /// The provenance of an actor of `task` from no recorded run: seed 0, no transitions, not
+    /// evaluated (spikes, tests, files made from other files).
+    pub fn bare(task: Task) -> Self {
+        ExportInfo {
+            task,
+            seed: 0,
+            transitions: 0,
+            success_rate: None,
+            eval_episodes: 0,
+        }
+    }
+}
+
 /// Precision of an exported policy's weights.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum Precision {
