@@ -47,8 +47,7 @@ use crate::env::seeds::{DEMO_SEED, episode_seed};
 use crate::env::{EnvConfig, JacoEnv, Scene, Task};
 use crate::evaluate::{EVAL_WIDTH, EvalError, controller_command, physical_to_env_action};
 use crate::files::atomic_write::write_atomic;
-use crate::files::export::{ExportError, ExportInfo};
-use crate::files::policy_import::ImportError;
+use crate::files::export::ExportInfo;
 use crate::learn::adam::{AdamConfig, AdamLocal, AdamShared, adam_step};
 use crate::learn::nets::MlpScratch;
 use crate::learn::{LearnError, Rng};
@@ -77,19 +76,14 @@ pub enum GroupPgError {
         /// What failed.
         source: std::io::Error,
     },
-    /// The starting file is not an actor this fine-tune can start from.
-    #[error(transparent)]
-    Import(#[from] ImportError),
     /// A rollout failed (the file, the runtime or the simulation).
     #[error(transparent)]
     Eval(#[from] EvalError),
-    /// The actor could not be written as a policy file.
-    #[error(transparent)]
-    Export(#[from] ExportError),
     /// The learner refused a shape.
     #[error(transparent)]
     Learn(#[from] LearnError),
-    /// The starting file is not an actor, or the actor not a file.
+    /// The starting file is not an actor this fine-tune can start from, or the actor could not
+    /// be written as a policy file.
     #[error(transparent)]
     Actor(#[from] FileActorError),
     /// The checkpoint does not decode or is of another start.
