@@ -118,11 +118,9 @@ impl StallWatch {
         if !self.detector.observe(env, out) {
             return false;
         }
-        // `ring` holds the states before the last `back` steps (fewer near the episode's start).
-        self.found = match self.ring.front() {
-            Some(s) if self.back > 0 => Some(s.clone()),
-            _ => Some(env.snapshot()),
-        };
+        // `ring` holds the states before the last `back` steps (fewer near the episode's start;
+        // none with `back` 0, when the kept state is the stalled one).
+        self.found = Some(self.ring.front().cloned().unwrap_or_else(|| env.snapshot()));
         true
     }
 
