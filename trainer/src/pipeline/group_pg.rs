@@ -36,6 +36,7 @@
 //! step to the task's last.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use dex_runtime::Mlp as RuntimeMlp;
 use dex_runtime::can::messages::quantise_observation;
@@ -357,7 +358,7 @@ enum Start<'a> {
 
 /// Runs (or resumes) a fine-tune in `dir`: the checkpoint, one progress line and the latest
 /// actor after every iteration, `policy-NNNN.dxpl` every `save_every` iterations (0: none);
-/// calls `on_iteration` with each iteration's report.
+/// calls `on_iteration` with each iteration's report. Returns the last actor's file.
 pub fn run(
     settings: &GroupPg,
     scene: &Scene,
@@ -365,6 +366,33 @@ pub fn run(
     dir: &Path,
     threads: usize,
     save_every: u32,
+    on_iteration: &mut dyn FnMut(&IterationReport),
+) -> Result<Vec<u8>, GroupPgError> {
+    let never = AtomicBool::new(false);
+    run_until(
+        settings,
+        scene,
+        task,
+        dir,
+        threads,
+        save_every,
+        &never,
+        on_iteration,
+    )
+}
+
+/// [`run`] that also stops before an iteration once `stop` is raised (the checkpoint then holds
+/// every finished iteration, and the file returned is the latest actor's: the caller checks
+/// `stop` to tell a stopped run from a finished one).
+#[allow(clippy::too_many_arguments)]
+pub fn run_until(
+    settings: &GroupPg,
+    scene: &Scene,
+    task: Task,
+    dir: &Path,
+    threads: usize,
+    save_every: u32,
+    stop: &AtomicBool,
     on_iteration: &mut dyn FnMut(&IterationReport),
 ) -> Result<Vec<u8>, GroupPgError> {
     settings.validate()?;
@@ -430,7 +458,7 @@ pub fn run(
     let mut scratch = actor.net.scratch(mb);
     // The actor the rollouts run: after each update it is also the iteration's saved file.
     let mut policy = actor.export(&info(env_steps))?;
-    if first == 0 && settings.stall_harvest > 0 {
+    if first == 0 && settings.stall_harvest > 0 && !stop.load(Ordering::SeqCst) {
         let seeds: Vec<u64> = (0..settings.stall_harvest)
             .map(|i| settings.harvest_seed(i))
             .collect();
@@ -441,6 +469,9 @@ pub fn run(
     }
     let reps = settings.replicates as usize;
     for iteration in first..settings.iterations {
+        if stop.load(Ordering::SeqCst) {
+            break;
+        }
         let seeds = settings.starts(iteration, &hard);
         let revisited = settings.revisits(hard.len());
         let picks = settings.stall_picks(iteration, stalls.len());

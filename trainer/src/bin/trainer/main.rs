@@ -169,6 +169,12 @@ struct TrainArgs {
     /// the fine-tune preset's 500).
     #[arg(long)]
     guard_episodes: Option<u32>,
+    /// After each seed's export, fine-tune its file by the group-relative policy gradient
+    /// (`trainer pg`, the `[pg]` stage: the file's defaults or the settings file's `[pg]`) for
+    /// this many iterations into `OUT/seed-S/pg`, whose `policy.dxpl` is the seed's final file
+    /// (0: no such stage).
+    #[arg(long)]
+    pg_iterations: Option<u32>,
     /// Continue from the checkpoints in the output folder.
     #[arg(long)]
     resume: bool,

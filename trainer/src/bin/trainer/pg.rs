@@ -1,7 +1,7 @@
 //! `trainer pg POLICY --out DIR`: fine-tunes a policy file by the group-relative policy gradient
 //! (`dex_trainer::pipeline::group_pg`: on-policy, from the task's success, no critic). Resumes
 //! from `DIR`'s checkpoint when there is one (the iteration budget may grow, nothing else may
-//! change); writes `DIR/policy.dxpl` at the end.
+//! change); writes `DIR/policy.dxpl` at the end. Ctrl-C stops it before the next iteration.
 
 use std::path::PathBuf;
 
@@ -9,9 +9,9 @@ use anyhow::Context;
 use clap::Args;
 
 use dex_trainer::files::atomic_write::write_atomic;
-use dex_trainer::pipeline::group_pg::{GroupPg, PROGRESS, run};
+use dex_trainer::pipeline::group_pg::{GroupPg, PROGRESS, run_until};
 
-use crate::train::{bar, load_scene};
+use crate::train::{bar, load_scene, stop_flag};
 
 /// `trainer pg` flags (defaults: [`GroupPg::new`]).
 #[derive(Args, Debug)]
@@ -114,18 +114,20 @@ pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
     settings.validate()?;
     let task = settings.task()?;
     let scene = load_scene()?;
+    let stop = stop_flag()?;
     let pb = bar(
         u64::from(settings.iterations),
         args.quiet,
         "group PG {bar:30} {pos}/{len} iterations ({elapsed}, eta {eta}) {msg}",
     );
-    let file = run(
+    let file = run_until(
         &settings,
         &scene,
         task,
         &args.out,
         args.threads,
         args.save_every,
+        &stop,
         &mut |r| {
             let mut line = format!(
                 "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, drift {:.3}, {} env steps",
@@ -153,6 +155,13 @@ pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
         },
     )?;
     pb.finish_and_clear();
+    if stop.load(std::sync::atomic::Ordering::SeqCst) {
+        println!(
+            "stopped: the checkpoint holds every finished iteration; run the same command again \
+             to continue"
+        );
+        return Ok(());
+    }
     let out = args.out.join("policy.dxpl");
     write_atomic(&out, &file).with_context(|| format!("cannot write {}", out.display()))?;
     println!(

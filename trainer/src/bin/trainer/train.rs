@@ -142,6 +142,11 @@ pub(crate) fn apply_flags(s: &mut TrainSettings, a: &TrainArgs) {
     if let Some(g) = a.guard_episodes {
         s.guard_episodes = g;
     }
+    match a.pg_iterations {
+        Some(0) => s.pg = None,
+        Some(n) => s.pg.get_or_insert_with(Default::default).iterations = n,
+        None => {}
+    }
     // After the preset, which sets the actor's rate: the flags win over it.
     apply_learning_rates(s, a);
     if let Some(d) = &a.demos {
@@ -460,11 +465,53 @@ impl Terminal {
                     pb.finish();
                 }
             }
-            TrainEvent::Exported { seed, path, eval } => println!(
-                "seed {seed}: exported {} - runtime evaluation {}",
-                path.display(),
-                describe(eval)
-            ),
+            TrainEvent::PgStarted {
+                seed,
+                dir,
+                iterations,
+            } => {
+                println!(
+                    "seed {seed}: policy-gradient stage ({iterations} iterations) in {}",
+                    dir.display()
+                );
+                let pb = bar(
+                    u64::from(iterations),
+                    self.quiet,
+                    "{prefix} [{elapsed_precise}] [{bar:30}] {pos}/{len} iterations {msg}",
+                );
+                pb.set_prefix(format!("seed {seed} pg"));
+                self.bar = Some(pb);
+            }
+            TrainEvent::PgIteration { seed, report: r } => {
+                let line = format!(
+                    "iteration {}: {}/{} with noise, {} groups with both outcomes, from stalls \
+                     {} of {} groups' episodes, pool {}",
+                    r.iteration + 1,
+                    r.successes,
+                    r.episodes,
+                    r.mixed_groups,
+                    r.stall_successes,
+                    r.stall_groups,
+                    r.stall_pool
+                );
+                match (&self.bar, self.quiet) {
+                    (Some(pb), false) => {
+                        pb.set_position(u64::from(r.iteration + 1));
+                        pb.set_message(line);
+                    }
+                    _ => println!("seed {seed} pg {line}"),
+                }
+            }
+            TrainEvent::Exported { seed, path, eval } => {
+                if let Some(pb) = self.bar.take() {
+                    pb.finish_and_clear();
+                }
+                println!(
+                    "seed {seed}: exported {} - runtime evaluation {}",
+                    path.display(),
+                    describe(eval)
+                );
+            }
             TrainEvent::MalformedLog { dir, lines } => warn_malformed(dir, lines),
             TrainEvent::Plotted { files } => {
                 files.iter().for_each(|f| println!("plot: {}", f.display()));
@@ -676,6 +723,21 @@ mod tests {
         let s = flagged(args);
         s.validate().expect("valid");
         s
+    }
+
+    #[test]
+    fn pg_iterations_add_the_policy_gradient_stage_to_the_default_pipeline() {
+        let s = settings(&["--task", "stack", "--pg-iterations", "30"]);
+        let mut lib = TrainSettings::for_task(TaskArg::Stack);
+        lib.pg = Some(train_settings::PgStage {
+            iterations: 30,
+            ..Default::default()
+        });
+        assert_eq!(s, lib, "the default pipeline, then the stage");
+        assert_eq!(
+            settings(&["--task", "stack", "--pg-iterations", "0"]).pg,
+            None
+        );
     }
 
     #[test]

@@ -71,6 +71,9 @@ fn check_distributable(s: &TrainSettings) -> Result<(), TrainRunError> {
     if s.clone.is_some() {
         return Err(TrainRunError::CloneDistributed);
     }
+    if s.pg.is_some() {
+        return no("the policy-gradient stage ([pg]: run it on the export with `trainer pg`)");
+    }
     if s.run.ddpg.residual.is_some() {
         return no("a residual actor (run.ddpg.residual: fine-tune a clone in a local run)");
     }
@@ -205,7 +208,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_residual_actor_is_refused_across_ranks() {
+    fn a_residual_actor_and_the_pg_stage_are_refused_across_ranks() {
         let mut s = TrainSettings {
             init_policy: Some("policies/stack.dxpl".into()),
             ..TrainSettings::default()
@@ -217,6 +220,12 @@ mod tests {
             Err(TrainRunError::NotDistributable { why }) if why.contains("residual")
         ));
         s.run.ddpg.residual = None;
+        s.pg = Some(crate::pipeline::train_settings::PgStage::default());
+        assert!(matches!(
+            check_distributable(&s),
+            Err(TrainRunError::NotDistributable { why }) if why.contains("[pg]")
+        ));
+        s.pg = None;
         s.run.ibrl = true;
         assert!(matches!(
             check_distributable(&s),

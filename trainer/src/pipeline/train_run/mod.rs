@@ -10,7 +10,8 @@
 //! `settings.toml`, `eval.jsonl`, `best.json` + `best_actor.bin` (the selected checkpoint),
 //! `demos.dxdm` (recorded demonstrations, when asked for), `policy.dxpl` and `final_eval.json`;
 //! with a clone stage also `clone/seed-S/`: the clone's imitation run folder, or with members one
-//! folder per member run (`NAME-sK`) and the distillation's (`distil`).
+//! folder per member run (`NAME-sK`) and the distillation's (`distil`); with a policy-gradient
+//! stage (`[pg]`) also `seed-S/pg/`, whose `policy.dxpl` is the seed's final file.
 
 use std::borrow::Cow;
 use std::fs::OpenOptions;
@@ -40,6 +41,7 @@ mod demonstrations;
 mod distributed;
 mod guard;
 mod members;
+mod pg_stage;
 mod run_log;
 mod screen;
 mod seed_export;
@@ -50,6 +52,7 @@ use demonstrations::demonstrations;
 pub use distributed::ParameterServer;
 pub use guard::GuardVerdict;
 use guard::run_guard;
+pub use pg_stage::PG_DIR;
 use run_log::truncate_log;
 pub use screen::Screening;
 pub use seed_export::{export_latest, export_selected};
@@ -251,6 +254,15 @@ pub enum TrainRunError {
     /// Loading or recording demonstrations failed.
     #[error(transparent)]
     Demos(#[from] DemoError),
+    /// The policy-gradient stage failed.
+    #[error("policy-gradient stage in {}", dir.display())]
+    Pg {
+        /// The stage's folder.
+        dir: PathBuf,
+        /// Why.
+        #[source]
+        source: crate::pipeline::group_pg::GroupPgError,
+    },
     /// The settings do not go with a distributed run.
     #[error("not supported in a distributed run: {why}")]
     NotDistributable {
@@ -456,7 +468,25 @@ pub enum TrainEvent<'a> {
         /// The seed.
         seed: u64,
     },
-    /// A seed's policy is exported and evaluated through the runtime.
+    /// A seed's policy-gradient stage (`[pg]`) starts (or resumes) from its exported file, in
+    /// `dir`; its final file arrives as a second [`TrainEvent::Exported`].
+    PgStarted {
+        /// The seed.
+        seed: u64,
+        /// The stage's folder (`OUT/seed-S/pg`).
+        dir: &'a Path,
+        /// Its iteration budget.
+        iterations: u32,
+    },
+    /// An iteration of a seed's policy-gradient stage is done (checkpoint saved).
+    PgIteration {
+        /// The seed.
+        seed: u64,
+        /// What the iteration did.
+        report: &'a crate::pipeline::group_pg::IterationReport,
+    },
+    /// A seed's policy is exported and evaluated through the runtime (after a policy-gradient
+    /// stage: once for the export it starts from, once for its own file).
     Exported {
         /// The seed.
         seed: u64,
@@ -685,6 +715,9 @@ impl TrainPlan {
                 return Ok(false);
             };
             if !train_seed(&plan, seed, scene, resume, stop, on_event, None)? {
+                return Ok(false);
+            }
+            if !pg_stage::pg_seed(&plan.settings, seed, scene, stop, on_event)? {
                 return Ok(false);
             }
         }

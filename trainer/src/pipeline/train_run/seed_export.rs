@@ -158,7 +158,7 @@ fn export_init(
 }
 
 /// `file` through the runtime on the final-evaluation starts.
-fn final_evaluation(
+pub(super) fn final_evaluation(
     file: &[u8],
     s: &TrainSettings,
     scene: &Scene,
@@ -173,13 +173,15 @@ pub const LATEST_EVAL_FILE: &str = "final_eval-latest.json";
 
 /// Which policy an export wrote: its `source` in the record, and the record's file name.
 #[derive(Debug, Clone, Copy)]
-enum Source {
+pub(super) enum Source {
     /// The run's selected checkpoint.
     Selected,
     /// The policy the run started from (the guard kept it).
     InitPolicy,
     /// The latest checkpoint (`trainer export --latest`).
     Latest,
+    /// The policy-gradient stage's last actor (`[pg]`, in its own folder).
+    GroupPg,
 }
 
 impl Source {
@@ -188,6 +190,7 @@ impl Source {
             Source::Selected => "selected",
             Source::InitPolicy => "init_policy",
             Source::Latest => "latest",
+            Source::GroupPg => "group_pg",
         }
     }
 
@@ -195,14 +198,14 @@ impl Source {
     fn record(self) -> &'static str {
         match self {
             Source::Latest => LATEST_EVAL_FILE,
-            Source::Selected | Source::InitPolicy => "final_eval.json",
+            Source::Selected | Source::InitPolicy | Source::GroupPg => "final_eval.json",
         }
     }
 }
 
 /// The record of `source` beside `out`: the figures, which policy it is and the guard's verdict,
 /// if any.
-fn write_final_eval(
+pub(super) fn write_final_eval(
     out: &Path,
     eval: &PolicyEval,
     transitions: u64,

@@ -6,6 +6,7 @@ use super::MAX_GUARD_EPISODES;
 use crate::env::EnvError;
 use crate::learn::LearnError;
 use crate::pipeline::clone_members::MembersError;
+use crate::pipeline::group_pg::GroupPgError;
 use crate::pipeline::imitation::ImitationError;
 
 /// Why settings could not be loaded, or are not valid.
@@ -156,6 +157,9 @@ pub enum SettingsError {
     /// The clone stage's members or distillation are refused (for one of the run's seeds).
     #[error("invalid [clone] members or distillation")]
     CloneMembers(#[source] MembersError),
+    /// The policy-gradient stage's settings are out of range.
+    #[error("invalid [pg] settings")]
+    Pg(#[source] GroupPgError),
 }
 
 /// A key of a settings file that no setting has, by its dotted path (`run.updates_per_step`).

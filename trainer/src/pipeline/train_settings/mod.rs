@@ -13,6 +13,7 @@ use crate::learn::{RunConfig, TargetUpdate};
 mod clone_stage;
 mod error;
 mod load;
+mod pg_stage;
 mod presets;
 mod start;
 mod task_args;
@@ -20,6 +21,7 @@ mod task_args;
 pub use clone_stage::CloneStage;
 pub use error::{SettingsError, UnknownSetting};
 pub use load::load;
+pub use pg_stage::PgStage;
 pub use presets::{
     DEMOS_TRANSITIONS, FINETUNE_GUARD_EPISODES, FINETUNE_TRANSITIONS, MAX_GUARD_EPISODES,
     MAX_SCREEN_STARTS, PresetArg, REACH_DEMOS_CHECKPOINT_EVERY, REACH_DEMOS_TRANSITIONS,
@@ -86,6 +88,11 @@ pub struct TrainSettings {
     /// file is, so the reinforcement-learning stage ships only a file measurably better than the
     /// one it was given (`--guard-episodes`; 0: off, the selected policy is shipped).
     pub guard_episodes: u32,
+    /// The policy-gradient stage (`[pg]`, `--pg`): after each seed's export, its file is
+    /// fine-tuned by [`crate::pipeline::group_pg`] in `OUT/seed-S/pg`, whose last actor is the
+    /// seed's final file (`OUT/seed-S/pg/policy.dxpl`, evaluated as the export is).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pg: Option<PgStage>,
     /// The learner.
     pub run: RunConfig,
 }
@@ -126,6 +133,7 @@ impl Default for TrainSettings {
             clone: None,
             features: false,
             guard_episodes: 0,
+            pg: None,
             run,
         }
     }
@@ -218,6 +226,9 @@ impl TrainSettings {
                 episodes: self.guard_episodes,
             });
         }
+        if let Some(pg) = &self.pg {
+            pg.validate().map_err(SettingsError::Pg)?;
+        }
         if let Some(stage) = &self.clone {
             if self.init_policy.is_some() {
                 return Err(SettingsError::CloneAndInitPolicy);
@@ -265,7 +276,10 @@ mod tests {
         let back: TrainSettings = toml::from_str(&text).unwrap();
         assert_eq!(back, s);
         for task in [TaskArg::Grasp, TaskArg::Stack, TaskArg::StackInHand] {
-            let s = TrainSettings::for_task(task);
+            let mut s = TrainSettings::for_task(task);
+            if task == TaskArg::Stack {
+                s.pg = Some(PgStage::default());
+            }
             let text = s.to_toml().unwrap();
             let back: TrainSettings = toml::from_str(&text).unwrap();
             assert_eq!(back, s, "{text}");
