@@ -1,7 +1,8 @@
 //! The policy-gradient stage of `trainer train` (`[pg]`, `--pg-iterations`): after a seed's
 //! export, the file is fine-tuned by `group_pg` in `seed-S/pg`, whose file is `trainer pg`'s for
 //! the same settings bit for bit; a stopped stage resumes to the same file, a resumed one with
-//! other settings is refused, settings out of range are refused before any work (needs MuJoCo).
+//! other settings or another export is refused, settings out of range are refused before any
+//! work (needs MuJoCo).
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -149,6 +150,16 @@ fn a_stopped_stage_resumes_to_the_same_file_and_other_settings_are_refused() {
     assert!(done);
     assert_eq!(seen.iterations, vec![1], "only the missing iteration runs");
     assert_eq!(file(&cut).unwrap(), file(&whole).unwrap());
+    // More transitions on resumption make another export: the stage does not fine-tune it
+    // from the old one's checkpoint.
+    let mut longer = s.clone();
+    longer.transitions = 400;
+    let e = TrainPlan::new(longer)
+        .unwrap()
+        .train(&scene, true, &AtomicBool::new(false), &mut |_| {})
+        .unwrap_err();
+    assert!(matches!(e, TrainRunError::PgStartChanged { .. }), "{e:?}");
+    assert_eq!(file(&cut).unwrap(), file(&whole).unwrap(), "nothing lost");
     for d in [&whole, &cut] {
         let _ = std::fs::remove_dir_all(d);
     }

@@ -52,7 +52,7 @@ use demonstrations::demonstrations;
 pub use distributed::ParameterServer;
 pub use guard::GuardVerdict;
 use guard::run_guard;
-pub use pg_stage::PG_DIR;
+pub use pg_stage::{PG_DIR, START_FILE};
 use run_log::truncate_log;
 pub use screen::Screening;
 pub use seed_export::{export_latest, export_selected};
@@ -262,6 +262,17 @@ pub enum TrainRunError {
         /// Why.
         #[source]
         source: crate::pipeline::group_pg::GroupPgError,
+    },
+    /// The seed's export is not the file its policy-gradient stage started from (the run was
+    /// resumed with settings that changed the export).
+    #[error(
+        "the seed's export changed since its policy-gradient stage started in {}: delete that \
+         folder to fine-tune the new export, or resume with the settings that made the old one",
+        dir.display()
+    )]
+    PgStartChanged {
+        /// The stage's folder.
+        dir: PathBuf,
     },
     /// The settings do not go with a distributed run.
     #[error("not supported in a distributed run: {why}")]

@@ -12,9 +12,13 @@ use crate::pipeline::group_pg::run_until;
 /// `final_eval.json`).
 pub const PG_DIR: &str = "pg";
 
-/// Runs (or resumes: the stage's checkpoint refuses other settings, the iterations aside) the
-/// stage of seed `seed` when the settings have one; returns false when `stop` was raised (the
-/// checkpoint then holds every finished iteration).
+/// The copy of the seed's export that the stage fine-tunes, in its folder.
+pub const START_FILE: &str = "start.dxpl";
+
+/// Runs (or resumes: the stage's checkpoint refuses other settings, the iterations aside, and
+/// the stage refuses an export other than the one it started from) the stage of seed `seed`
+/// when the settings have one; returns false when `stop` was raised (the checkpoint then holds
+/// every finished iteration).
 pub(super) fn pg_seed(
     s: &TrainSettings,
     seed: u64,
@@ -28,7 +32,21 @@ pub(super) fn pg_seed(
     let seed_dir = s.out.join(format!("seed-{seed}"));
     let _lock = RunLock::acquire(&seed_dir)?;
     let dir = seed_dir.join(PG_DIR);
-    let settings = stage.group_pg(seed_dir.join("policy.dxpl"), seed);
+    // The stage fine-tunes a copy of the export it started from: a resumed run whose export has
+    // changed since (more transitions) would otherwise mix two fine-tunes in one checkpoint.
+    let export = seed_dir.join("policy.dxpl");
+    let bytes = std::fs::read(&export).map_err(io_at(&export))?;
+    let start = dir.join(START_FILE);
+    match std::fs::read(&start) {
+        Ok(kept) if kept != bytes => return Err(TrainRunError::PgStartChanged { dir }),
+        Ok(_) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            std::fs::create_dir_all(&dir).map_err(io_at(&dir))?;
+            write_file(&start, &bytes)?;
+        }
+        Err(e) => return Err(io_at(&start)(e)),
+    }
+    let settings = stage.group_pg(start, seed);
     on_event(TrainEvent::PgStarted {
         seed,
         dir: &dir,
