@@ -318,6 +318,36 @@ pub struct IterationReport {
     pub stall_pool: u32,
 }
 
+impl IterationReport {
+    /// One line for a terminal (`trainer pg --quiet`, `trainer train`'s `[pg]` stage): the
+    /// iteration, its successes with the noise, the groups with a gradient, the clipped share,
+    /// the drift, the environment steps and, when it ran stall groups or holds stalls, their
+    /// episodes' successes (each group `replicates` episodes) and the pool.
+    pub fn line(&self, replicates: u32) -> String {
+        let mut line = format!(
+            "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, \
+             drift {:.3}, {} env steps",
+            self.iteration + 1,
+            self.successes,
+            self.episodes,
+            self.mixed_groups,
+            self.clipped,
+            self.drift,
+            self.env_steps
+        );
+        if self.stall_groups > 0 || self.stall_pool > 0 {
+            line += &format!(
+                "; from stalls {}/{} ({} groups, pool {})",
+                self.stall_successes,
+                self.stall_groups * replicates,
+                self.stall_groups,
+                self.stall_pool
+            );
+        }
+        line
+    }
+}
+
 #[derive(Serialize, Deserialize)]
 struct Checkpoint {
     settings: GroupPg,
@@ -834,6 +864,36 @@ fn update(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
+        let mut r = IterationReport {
+            iteration: 0,
+            episodes: 160,
+            successes: 82,
+            mixed_groups: 8,
+            samples: 0,
+            clipped: 0.1,
+            drift: 0.06,
+            env_steps: 466_968,
+            stall_groups: 0,
+            stall_successes: 0,
+            stall_pool: 0,
+        };
+        let plain = r.line(8);
+        assert!(
+            plain.starts_with("iteration 1 success 82/160 with noise"),
+            "{plain}"
+        );
+        assert!(!plain.contains("from stalls"), "{plain}");
+        (r.stall_groups, r.stall_successes, r.stall_pool) = (16, 50, 16);
+        assert!(
+            r.line(8)
+                .ends_with("; from stalls 50/128 (16 groups, pool 16)"),
+            "{}",
+            r.line(8)
+        );
+    }
 
     fn settings(revisit: f32) -> GroupPg {
         GroupPg {

@@ -129,23 +129,7 @@ pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
         args.save_every,
         &stop,
         &mut |r| {
-            let mut line = format!(
-                "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, drift {:.3}, {} env steps",
-                r.iteration + 1,
-                r.successes,
-                r.episodes,
-                r.mixed_groups,
-                r.clipped,
-                r.drift,
-                r.env_steps
-            );
-            if settings.stall_groups > 0 {
-                let reps = r.stall_groups * settings.replicates;
-                line += &format!(
-                    "; from stalls {}/{reps} ({} groups, pool {})",
-                    r.stall_successes, r.stall_groups, r.stall_pool
-                );
-            }
+            let line = r.line(settings.replicates);
             if args.quiet {
                 println!("{line}");
             } else {

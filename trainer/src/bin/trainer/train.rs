@@ -482,18 +482,12 @@ impl Terminal {
                 pb.set_prefix(format!("seed {seed} pg"));
                 self.bar = Some(pb);
             }
-            TrainEvent::PgIteration { seed, report: r } => {
-                let line = format!(
-                    "iteration {}: {}/{} with noise, {} groups with both outcomes, from stalls \
-                     {} of {} groups' episodes, pool {}",
-                    r.iteration + 1,
-                    r.successes,
-                    r.episodes,
-                    r.mixed_groups,
-                    r.stall_successes,
-                    r.stall_groups,
-                    r.stall_pool
-                );
+            TrainEvent::PgIteration {
+                seed,
+                report: r,
+                replicates,
+            } => {
+                let line = r.line(replicates);
                 match (&self.bar, self.quiet) {
                     (Some(pb), false) => {
                         pb.set_position(u64::from(r.iteration + 1));

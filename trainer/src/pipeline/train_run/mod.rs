@@ -495,6 +495,8 @@ pub enum TrainEvent<'a> {
         seed: u64,
         /// What the iteration did.
         report: &'a crate::pipeline::group_pg::IterationReport,
+        /// Episodes per group (for [`crate::pipeline::group_pg::IterationReport::line`]).
+        replicates: u32,
     },
     /// A seed's policy is exported and evaluated through the runtime (after a policy-gradient
     /// stage: once for the export it starts from, once for its own file).

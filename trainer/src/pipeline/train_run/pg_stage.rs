@@ -60,7 +60,13 @@ pub(super) fn pg_seed(
         s.eval_threads,
         stage.save_every,
         stop,
-        &mut |report| on_event(TrainEvent::PgIteration { seed, report }),
+        &mut |report| {
+            on_event(TrainEvent::PgIteration {
+                seed,
+                report,
+                replicates: stage.replicates,
+            });
+        },
     )
     .map_err(|source| TrainRunError::Pg {
         dir: dir.clone(),
