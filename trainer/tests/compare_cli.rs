@@ -135,3 +135,74 @@ fn an_ensemble_of_one_file_is_that_file_and_mixed_tasks_are_refused() {
     assert!(!o.status.success());
     assert!(text(&o).contains("one task"), "{}", text(&o));
 }
+
+#[test]
+fn pool_adds_chunks_of_disjoint_starts_and_refuses_shared_ones() {
+    let dir = fresh_path("compare", "pool");
+    std::fs::create_dir_all(&dir).unwrap();
+    let chunk = |seed: &str| {
+        let json = dir.join(format!("chunk-{seed}.json"));
+        let o = trainer(&[
+            "compare",
+            REACH_FIXTURE,
+            INT8,
+            "--episodes",
+            "8",
+            "--seed",
+            seed,
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        (json, r)
+    };
+    let (a, ra) = chunk("9000000");
+    let (b, rb) = chunk("9000500");
+    // Each file's entry carries its hash, so that pooled chunks are of the same files.
+    let sha = dex_trainer::files::result_record::sha256_hex(&std::fs::read(INT8).unwrap());
+    assert_eq!(ra["entries"][1]["sha256"].as_str(), Some(sha.as_str()));
+    let pooled = dir.join("pooled.json");
+    let o = trainer(&[
+        "pool",
+        a.to_str().unwrap(),
+        b.to_str().unwrap(),
+        "--json",
+        pooled.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("16 starts in 2 chunks"), "{}", text(&o));
+    let p: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&pooled).unwrap()).unwrap();
+    assert_eq!(p["episodes"].as_u64(), Some(16));
+    for k in 0..2 {
+        let sum = ra["entries"][k]["successes"].as_u64().unwrap()
+            + rb["entries"][k]["successes"].as_u64().unwrap();
+        assert_eq!(p["entries"][k]["successes"].as_u64(), Some(sum));
+    }
+    for field in ["only_a", "only_b"] {
+        let sum = ra["pairs"][0]["paired"][field].as_u64().unwrap()
+            + rb["pairs"][0]["paired"][field].as_u64().unwrap();
+        assert_eq!(p["pairs"][0]["paired"][field].as_u64(), Some(sum));
+    }
+    // The same chunk twice is the same starts twice: refused, and nothing is written.
+    let again = dir.join("again.json");
+    let o = trainer(&[
+        "pool",
+        a.to_str().unwrap(),
+        a.to_str().unwrap(),
+        "--json",
+        again.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("share starts"), "{}", text(&o));
+    assert!(!again.exists());
+    // One record is not a pool; a file that is not a record is named.
+    let o = trainer(&["pool", a.to_str().unwrap()]);
+    assert!(!o.status.success());
+    let o = trainer(&["pool", a.to_str().unwrap(), INT8]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("reach_int8_seed0.dxpl"), "{}", text(&o));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -3,6 +3,8 @@
 //! - [`atomic_write`]: the one atomic, durable file write (temporary file, fsync, rename, fsync of
 //!   the folder) behind every file that must survive a crash: checkpoints, demo and policy files,
 //!   run settings and logs.
+//! - [`comparison_record`]: a `trainer compare` record, and records of disjoint starts pooled
+//!   into one comparison (a long paired test run in chunks).
 //! - [`demos`]: demonstrations recorded as data (versioned, checksummed `.dxdm` files).
 //! - [`export`]: a trained actor as a `dex-policy` file; [`int8_export`]: its int8 twin
 //!   (calibrate, equalise, quantise, measure).
@@ -14,6 +16,7 @@
 //!   the clone they started from).
 
 pub mod atomic_write;
+pub mod comparison_record;
 pub mod demos;
 pub mod export;
 pub mod int8_export;

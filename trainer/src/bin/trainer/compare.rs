@@ -7,15 +7,14 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use serde::Serialize;
 
 use dex_trainer::cell::proposal_pair::ProposalPair;
 use dex_trainer::env::evaluate::{
     demonstration_outcomes, ensemble_outcomes, episode_outcomes, teacher_outcomes,
 };
-use dex_trainer::env::paired::Paired;
-use dex_trainer::evaluate::{PolicyEval, wilson_interval};
 use dex_trainer::files::atomic_write::write_atomic;
+use dex_trainer::files::comparison_record::{ComparedEntry, ComparedPair, ComparisonRecord};
+use dex_trainer::files::result_record::sha256_hex;
 use dex_trainer::pipeline::train_settings::TaskArg;
 
 use crate::eval_flags::EvalFlags;
@@ -52,35 +51,6 @@ pub struct CompareArgs {
     /// discordant starts and p-value, the command, the wall time).
     #[arg(long)]
     json: Option<PathBuf>,
-}
-
-/// One compared entry.
-#[derive(Debug, Serialize)]
-struct Entry {
-    name: String,
-    successes: u32,
-    episodes: u32,
-    interval_95: (f64, f64),
-}
-
-/// One compared pair (A against B).
-#[derive(Debug, Serialize)]
-struct Pair {
-    a: String,
-    b: String,
-    paired: Paired,
-}
-
-#[derive(Debug, Serialize)]
-struct Comparison {
-    command: String,
-    task: String,
-    start_seed: u64,
-    episodes: u32,
-    can_quantisation: bool,
-    entries: Vec<Entry>,
-    pairs: Vec<Pair>,
-    wall_s: f64,
 }
 
 /// Runs `trainer compare`.
@@ -150,12 +120,12 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     let mut outcomes = Vec::with_capacity(entries);
     if args.teacher {
         let o = teacher_outcomes(&scene, &settings, &|| pb.inc(1))?;
-        outcomes.push(("teacher (Markov demonstrator)".to_string(), o));
+        outcomes.push(("teacher (Markov demonstrator)".to_string(), None, o));
     }
     for (name, bytes) in &files {
         let o = episode_outcomes(bytes, &scene, &settings, &|| pb.inc(1))
             .with_context(|| format!("evaluating {name}"))?;
-        outcomes.push((name.clone(), o));
+        outcomes.push((name.clone(), Some(sha256_hex(bytes)), o));
     }
     for list in &ensembles {
         let bytes: Vec<&[u8]> = list.iter().map(|p| member_bytes[p].as_slice()).collect();
@@ -169,62 +139,29 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
         );
         let o = ensemble_outcomes(&bytes, &scene, &settings, &|| pb.inc(1))
             .with_context(|| format!("evaluating the {name}"))?;
-        outcomes.push((name, o));
+        outcomes.push((name, None, o));
     }
     for (dir, pair) in &pairs {
         let name = format!("IBRL pair of {}", dir.display());
         let o = demonstration_outcomes(&scene, &settings, &|| Ok(pair.clone()), &|| pb.inc(1))
             .with_context(|| format!("evaluating the {name}"))?;
-        outcomes.push((name, o));
+        outcomes.push((name, None, o));
     }
     pb.finish_and_clear();
     println!(
         "{task:?}, the same {} starts from seed {} for every entry:",
         args.episodes, args.at.seed
     );
-    let mut report = Comparison {
-        command: std::env::args().collect::<Vec<_>>().join(" "),
-        task: format!("{task:?}"),
-        start_seed: args.at.seed,
-        episodes: args.episodes,
-        can_quantisation: !args.at.no_can_quantisation,
-        entries: Vec::new(),
-        pairs: Vec::new(),
-        wall_s: 0.0,
-    };
-    for (name, o) in &outcomes {
-        let e = PolicyEval::from_outcomes(o);
-        let (lo, hi) = wilson_interval(e.successes, e.episodes);
-        println!(
-            "  {name}: {}/{} = {:.1}% (95% CI {:.1}-{:.1}%)",
-            e.successes,
-            e.episodes,
-            100.0 * e.success_rate(),
-            100.0 * lo,
-            100.0 * hi
-        );
-        report.entries.push(Entry {
-            name: name.clone(),
-            successes: e.successes,
-            episodes: e.episodes,
-            interval_95: (100.0 * lo, 100.0 * hi),
-        });
-    }
-    for (i, (a, oa)) in outcomes.iter().enumerate() {
-        for (b, ob) in &outcomes[i + 1..] {
-            let p = Paired::of(oa, ob);
-            println!(
-                "  {a} vs {b}: only the first {}, only the second {}, McNemar p = {:.4}",
-                p.only_a, p.only_b, p.p_value
-            );
-            report.pairs.push(Pair {
-                a: a.clone(),
-                b: b.clone(),
-                paired: p,
-            });
-        }
-    }
-    report.wall_s = started.elapsed().as_secs_f64();
+    let wall_s = started.elapsed().as_secs_f64();
+    let report = ComparisonRecord::of(
+        std::env::args().collect::<Vec<_>>().join(" "),
+        format!("{task:?}"),
+        args.at.seed,
+        !args.at.no_can_quantisation,
+        &outcomes,
+        wall_s,
+    );
+    print_comparison(&report.entries, &report.pairs);
     if let Some(path) = &args.json {
         let json = serde_json::to_string_pretty(&report)?;
         write_atomic(path, json.as_bytes())
@@ -232,4 +169,26 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
         println!("comparison written to {}", path.display());
     }
     Ok(())
+}
+
+/// Prints every entry's successes with its interval, then every pair's discordant starts and
+/// McNemar p-value (`trainer compare` and `trainer pool`).
+pub(crate) fn print_comparison(entries: &[ComparedEntry], pairs: &[ComparedPair]) {
+    for e in entries {
+        println!(
+            "  {}: {}/{} = {:.1}% (95% CI {:.1}-{:.1}%)",
+            e.name,
+            e.successes,
+            e.episodes,
+            100.0 * f64::from(e.successes) / f64::from(e.episodes.max(1)),
+            e.interval_95.0,
+            e.interval_95.1
+        );
+    }
+    for p in pairs {
+        println!(
+            "  {} vs {}: only the first {}, only the second {}, McNemar p = {:.4}",
+            p.a, p.b, p.paired.only_a, p.paired.only_b, p.paired.p_value
+        );
+    }
 }

@@ -21,6 +21,7 @@ mod eval_flags;
 mod figure;
 mod imitate;
 mod pg;
+mod pool;
 mod soup;
 mod train;
 
@@ -53,6 +54,9 @@ pub(crate) enum Command {
     Eval(EvalArgs),
     /// Policy files (and the teacher) on the same starts, with the McNemar test of every pair.
     Compare(compare::CompareArgs),
+    /// `trainer compare` records of disjoint starts pooled into one comparison (a long test run
+    /// in chunks).
+    Pool(pool::PoolArgs),
     /// Plot a run folder's learning curves (PNG and SVG).
     Plot {
         /// Run folder (holds seed-*/eval.jsonl).
@@ -415,6 +419,7 @@ fn main() -> anyhow::Result<()> {
         Command::DistributedPointMass(args) => distributed::point_mass(&args),
         Command::Eval(args) => train::eval(&args),
         Command::Compare(args) => compare::compare(&args),
+        Command::Pool(args) => pool::pool(&args),
         Command::Demos(args) => demos::demos(&args),
         Command::Clone(args) => demos::clone(&args),
         Command::Imitate(args) => imitate::imitate(&args),

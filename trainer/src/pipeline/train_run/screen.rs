@@ -6,8 +6,8 @@
 //! folder's `failed_starts.json` and is reused when the same file was screened on the same starts
 //! (a resumed run trains on the same list).
 
+use crate::files::result_record::sha256_hex;
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use super::*;
 use crate::env::Revisits;
@@ -30,13 +30,6 @@ pub struct Screening {
 }
 
 const SCREEN_FILE: &str = "failed_starts.json";
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
 
 /// The screening of `init` for seed folder `dir` (`start.failed_starts` starts), read from
 /// `failed_starts.json` when that file screened the same policy bytes on the same starts, else

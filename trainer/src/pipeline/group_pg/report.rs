@@ -1,0 +1,63 @@
+//! What one iteration of a fine-tune did, as a progress line and for a terminal.
+
+use serde::{Deserialize, Serialize};
+
+/// What one iteration did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IterationReport {
+    /// Iteration index (from 0).
+    pub iteration: u32,
+    /// Episodes run.
+    pub episodes: u32,
+    /// Of them successful (with the noise).
+    pub successes: u32,
+    /// Groups with both outcomes (the only ones with a gradient).
+    pub mixed_groups: u32,
+    /// Steps the update used.
+    pub samples: u64,
+    /// Share of the update's sample gradients the ratio clip removed.
+    pub clipped: f64,
+    /// Root mean square of `(mu - clone) / sigma` over the kept steps after the update.
+    pub drift: f64,
+    /// Environment steps so far (all iterations).
+    pub env_steps: u64,
+    /// Groups run from stalled states (counted in `episodes`).
+    #[serde(default)]
+    pub stall_groups: u32,
+    /// Of their episodes, successful.
+    #[serde(default)]
+    pub stall_successes: u32,
+    /// Stalled states in the pool after the iteration.
+    #[serde(default)]
+    pub stall_pool: u32,
+}
+
+impl IterationReport {
+    /// One line for a terminal (`trainer pg --quiet`, `trainer train`'s `[pg]` stage): the
+    /// iteration, its successes with the noise, the groups with a gradient, the clipped share,
+    /// the drift, the environment steps and, when it ran stall groups or holds stalls, their
+    /// episodes' successes (each group `replicates` episodes) and the pool.
+    pub fn line(&self, replicates: u32) -> String {
+        let mut line = format!(
+            "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, \
+             drift {:.3}, {} env steps",
+            self.iteration + 1,
+            self.successes,
+            self.episodes,
+            self.mixed_groups,
+            self.clipped,
+            self.drift,
+            self.env_steps
+        );
+        if self.stall_groups > 0 || self.stall_pool > 0 {
+            line += &format!(
+                "; from stalls {}/{} ({} groups, pool {})",
+                self.stall_successes,
+                self.stall_groups * replicates,
+                self.stall_groups,
+                self.stall_pool
+            );
+        }
+        line
+    }
+}

@@ -1,0 +1,155 @@
+//! The noisy episodes of an iteration, and what the run remembers of them (hard starts, stalls).
+
+use dex_runtime::Mlp as RuntimeMlp;
+use dex_runtime::can::messages::quantise_observation;
+use dex_runtime::interface::{ACT_DIM, OBS_DIM};
+
+use crate::env::{EnvConfig, JacoEnv, Scene, Task};
+use crate::evaluate::{EVAL_WIDTH, EvalError, controller_command, physical_to_env_action};
+use crate::learn::Rng;
+use crate::pipeline::stall_starts::{StallStart, StallWatch};
+
+use super::{GroupPg, GroupPgError, STALL_POOL};
+
+/// One noisy episode: the observations the controller saw (CAN-quantised), the noise added to
+/// each action, the outcome, and (from a start seed) the state where it stalled before failing.
+pub(super) struct Episode {
+    pub(super) obs: Vec<[f32; OBS_DIM]>,
+    pub(super) noise: Vec<[f32; ACT_DIM]>,
+    pub(super) success: bool,
+    pub(super) stall: Option<StallStart>,
+}
+
+/// Where a group's episodes begin.
+pub(super) enum Start<'a> {
+    /// A start seed and the noise stream tag of its episodes.
+    Seed(u64, u64),
+    /// A stalled state and the noise stream tag of its episodes.
+    Stall(&'a StallStart, u64),
+}
+
+/// Starts kept for revisits.
+pub(super) const HARD_STARTS: usize = 256;
+
+/// Updates the hard starts after an iteration: a start whose group failed at least once is kept
+/// (the most recent [`HARD_STARTS`]), one whose group succeeded every time is dropped.
+pub(super) fn remember_hard(
+    hard: &mut Vec<u64>,
+    starts: &[u64],
+    episodes: &[Episode],
+    reps: usize,
+) {
+    for (seed, group) in starts.iter().zip(episodes.chunks(reps)) {
+        hard.retain(|h| h != seed);
+        if group.iter().any(|e| !e.success) {
+            hard.push(*seed);
+        }
+    }
+    if hard.len() > HARD_STARTS {
+        let extra = hard.len() - HARD_STARTS;
+        hard.drain(..extra);
+    }
+}
+
+/// Adds newly found stalls to the pool, keeping the newest [`STALL_POOL`].
+///
+/// A stall of a start seed at a step the pool already holds is not added: with revisits a start
+/// can stall again at the same step, and the stall groups' noise streams are named by the seed,
+/// the step and the iteration, so two such entries picked in one iteration would draw the same
+/// noise.
+pub(super) fn remember_stalls(pool: &mut Vec<StallStart>, found: Vec<StallStart>) {
+    for f in found {
+        let same = |p: &StallStart| p.seed == f.seed && p.snapshot.steps() == f.snapshot.steps();
+        if !pool.iter().any(same) {
+            pool.push(f);
+        }
+    }
+    if pool.len() > STALL_POOL {
+        let extra = pool.len() - STALL_POOL;
+        pool.drain(..extra);
+    }
+}
+
+/// The noisy episodes of `policy`, `replicates` from each start, in (start, replicate) order;
+/// episode `k` of a start draws its noise from the stream `tag + k` of the start's seed.
+pub(super) fn rollouts(
+    s: &GroupPg,
+    scene: &Scene,
+    task: Task,
+    policy: &[u8],
+    starts: &[Start<'_>],
+    threads: usize,
+) -> Result<Vec<Episode>, GroupPgError> {
+    let aligned = dex_runtime::aligned::aligned_copy(policy);
+    let reps = s.replicates as usize;
+    crate::env::parallel::map_in_order(
+        starts.len() * reps,
+        threads,
+        || -> Result<_, GroupPgError> {
+            let view = crate::evaluate::decode_jaco_policy(aligned.as_bytes())?;
+            let mlp = RuntimeMlp::<EVAL_WIDTH>::new(&view).map_err(EvalError::from)?;
+            Ok((mlp, JacoEnv::new(scene, EnvConfig::new(task))))
+        },
+        |(mlp, env), i| {
+            let k = (i % reps) as u64;
+            match &starts[i / reps] {
+                Start::Seed(seed, tag) => {
+                    let o = env.reset(*seed).map_err(EvalError::from)?;
+                    let mut rng = Rng::derive(*seed, tag + k);
+                    episode(s, env, mlp, o, Some(*seed), &mut rng)
+                }
+                Start::Stall(stall, tag) => {
+                    let o = env.restore(&stall.snapshot).map_err(EvalError::from)?;
+                    let mut rng = Rng::derive(stall.seed, tag + k);
+                    episode(s, env, mlp, o, None, &mut rng)
+                }
+            }
+        },
+        &|| {},
+    )
+}
+
+/// One noisy episode from the environment's current state `o` to the task's last step. With
+/// `seed` (an episode from a start seed) it also watches for the stall.
+pub(super) fn episode(
+    s: &GroupPg,
+    env: &mut JacoEnv,
+    mlp: &mut RuntimeMlp<'_, EVAL_WIDTH>,
+    mut o: [f32; OBS_DIM],
+    seed: Option<u64>,
+    rng: &mut Rng,
+) -> Result<Episode, GroupPgError> {
+    let (mut obs, mut noise) = (Vec::with_capacity(160), Vec::with_capacity(160));
+    // Only the start-seed episodes feed the pool.
+    let watching = seed.is_some() && s.stall_groups > 0;
+    let mut watch = StallWatch::new(s.stall_back as usize);
+    loop {
+        let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
+        let e: [f32; ACT_DIM] = std::array::from_fn(|j| rng.normal(0.0, s.sigma(j)));
+        for (x, n) in a.iter_mut().zip(&e) {
+            *x = (*x + n).clamp(-1.0, 1.0);
+        }
+        obs.push(std::array::from_fn(|i| quantise_observation(i, o[i])));
+        noise.push(e);
+        if watching {
+            watch.before_step(env);
+        }
+        let out = env.step(&a).map_err(EvalError::from)?;
+        if watching {
+            watch.after_step(env, &out);
+        }
+        o = out.observation;
+        if out.done {
+            let stall = seed
+                .zip(watch.into_found())
+                .filter(|_| !out.success)
+                .map(|(seed, snapshot)| StallStart { seed, snapshot });
+            return Ok(Episode {
+                obs,
+                noise,
+                success: out.success,
+                stall,
+            });
+        }
+    }
+}

@@ -1,0 +1,240 @@
+//! The settings of a group-relative policy-gradient fine-tune, and why one cannot run.
+
+use std::path::PathBuf;
+
+use dex_runtime::kinematics::ARM_JOINTS;
+use serde::{Deserialize, Serialize};
+
+use crate::env::Task;
+use crate::env::seeds::{DEMO_SEED, episode_seed};
+use crate::evaluate::EvalError;
+use crate::learn::{LearnError, Rng};
+use crate::pipeline::file_actor::FileActorError;
+
+use super::{MAX_STALL_BACK, STALL_POOL};
+
+/// Why a fine-tune cannot run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum GroupPgError {
+    /// A setting is out of range.
+    #[error("group_pg: {0}")]
+    Settings(String),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+    /// A rollout failed (the file, the runtime or the simulation).
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    /// The learner refused a shape.
+    #[error(transparent)]
+    Learn(#[from] LearnError),
+    /// The starting file is not an actor this fine-tune can start from, or the actor could not
+    /// be written as a policy file.
+    #[error(transparent)]
+    Actor(#[from] FileActorError),
+    /// The checkpoint does not decode or is of another start.
+    #[error("checkpoint {path}: {why}")]
+    Checkpoint {
+        /// The file.
+        path: PathBuf,
+        /// Why it is refused.
+        why: String,
+    },
+}
+
+/// Settings of a group-relative policy-gradient fine-tune.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupPg {
+    /// The f32 policy file (of the run's task) the actor starts from.
+    pub policy: PathBuf,
+    /// Iterations (each: rollouts, then the update).
+    pub iterations: u32,
+    /// Training starts per iteration.
+    pub groups: u32,
+    /// Episodes from each start (at least 2: the baseline is the group's mean).
+    pub replicates: u32,
+    /// Standard deviation of the noise on the arm's actions, action units.
+    pub arm_noise: f32,
+    /// Standard deviation of the noise on the fingers' actions.
+    pub finger_noise: f32,
+    /// Adam's step size.
+    pub lr: f32,
+    /// Passes over an iteration's kept steps.
+    pub epochs: u32,
+    /// Steps per Adam step.
+    pub minibatch: u32,
+    /// PPO's ratio clip.
+    pub clip: f32,
+    /// Weight of the KL divergence to the starting file (0: none).
+    pub anchor: f32,
+    /// Share of each iteration's groups that revisit starts where a recent group failed at
+    /// least once (0: every start is fresh). Such starts carry both outcomes more often, so more
+    /// of the episodes carry a gradient; the objective then weighs the hard starts more.
+    #[serde(default)]
+    pub revisit: f32,
+    /// Groups per iteration, beside `groups`, that start from stalled states of the policy
+    /// (0: none; at most [`STALL_POOL`]).
+    #[serde(default)]
+    pub stall_groups: u32,
+    /// Noise-free episodes of the starting file whose stalls fill the pool before the first
+    /// iteration (0: the pool fills from the noisy episodes alone).
+    #[serde(default)]
+    pub stall_harvest: u32,
+    /// Weight of the KL divergence to the starting file on every step of the start-seed groups'
+    /// episodes, whether their group carries a gradient or not (0: none). It holds the policy
+    /// where it works while the stall groups move it where it stalls; `anchor` acts on the
+    /// steps with a gradient only, stall groups' included. The kept rows share the minibatches,
+    /// so the policy-gradient term's mean is over more rows (a smaller step at the same `lr`).
+    #[serde(default)]
+    pub fresh_anchor: f32,
+    /// Steps before each stall that a pool entry keeps (0: the stalled state itself). The
+    /// detector needs ten still steps, so from about 12 on an entry lies in the approach, where
+    /// a noise-free policy can avoid the stall rather than escape it (session 32).
+    #[serde(default)]
+    pub stall_back: u32,
+    /// Seed of the starts, the noise and the minibatch order.
+    pub seed: u64,
+}
+
+impl GroupPg {
+    /// The settings `trainer pg` starts from (chosen in session 30's spike, docs/experiments.md).
+    pub fn new(policy: PathBuf) -> Self {
+        GroupPg {
+            policy,
+            iterations: 60,
+            groups: 16,
+            replicates: 8,
+            arm_noise: 0.1,
+            finger_noise: 0.05,
+            lr: 1e-5,
+            epochs: 4,
+            minibatch: 1024,
+            clip: 0.2,
+            anchor: 0.0,
+            revisit: 0.0,
+            stall_groups: 0,
+            stall_harvest: 0,
+            fresh_anchor: 0.0,
+            stall_back: 0,
+            seed: 1,
+        }
+    }
+
+    /// Checks the ranges (not the file: [`GroupPg::run`] reads it).
+    pub fn validate(&self) -> Result<(), GroupPgError> {
+        let bad = |why: &str| Err(GroupPgError::Settings(why.to_owned()));
+        if self.iterations == 0 || self.groups == 0 || self.epochs == 0 || self.minibatch == 0 {
+            return bad("iterations, groups, epochs and minibatch must be at least 1");
+        }
+        if self.replicates < 2 {
+            return bad("replicates must be at least 2 (the baseline is the group's mean)");
+        }
+        let noise_ok = |s: f32| s.is_finite() && s > 0.0 && s <= 1.0;
+        if !noise_ok(self.arm_noise) || !noise_ok(self.finger_noise) {
+            return bad("noise must be in (0, 1]: the gradient divides by it");
+        }
+        if !(self.lr.is_finite() && self.lr > 0.0 && self.lr < 1.0) {
+            return bad("lr must be in (0, 1)");
+        }
+        if !(self.clip.is_finite() && self.clip > 0.0 && self.clip < 1.0) {
+            return bad("clip must be in (0, 1)");
+        }
+        if !(self.anchor.is_finite() && self.anchor >= 0.0) {
+            return bad("anchor must be finite and at least 0");
+        }
+        if !(self.fresh_anchor.is_finite() && self.fresh_anchor >= 0.0) {
+            return bad("fresh_anchor must be finite and at least 0");
+        }
+        if !(self.revisit.is_finite() && (0.0..1.0).contains(&self.revisit)) {
+            return bad("revisit must be in [0, 1)");
+        }
+        if self.stall_groups as usize > STALL_POOL {
+            return bad("stall_groups must be at most 256 (the stall pool's size)");
+        }
+        if self.stall_harvest > 0 && self.stall_groups == 0 {
+            return bad("stall_harvest finds states for stall_groups, which is 0");
+        }
+        if self.stall_back > 0 && self.stall_groups == 0 {
+            return bad("stall_back places the states of stall_groups, which is 0");
+        }
+        if self.stall_back > MAX_STALL_BACK {
+            return bad("stall_back must be at most 100 steps");
+        }
+        if self.stall_harvest > 100_000 {
+            return bad("stall_harvest must be at most 100000 episodes");
+        }
+        Ok(())
+    }
+
+    /// The task of the starting file (read from its header).
+    pub fn task(&self) -> Result<Task, GroupPgError> {
+        let file = std::fs::read(&self.policy).map_err(|source| GroupPgError::Io {
+            path: self.policy.clone(),
+            source,
+        })?;
+        let aligned = dex_runtime::aligned::aligned_copy(&file);
+        let view = crate::evaluate::decode_jaco_policy(aligned.as_bytes())?;
+        Ok(Task::from(view.body().task))
+    }
+
+    /// Noise standard deviation of action component `j`.
+    pub(super) fn sigma(&self, j: usize) -> f32 {
+        if j < ARM_JOINTS {
+            self.arm_noise
+        } else {
+            self.finger_noise
+        }
+    }
+
+    /// Fresh start seed of group `g` of iteration `i`.
+    pub fn start_seed(&self, iteration: u32, group: u32) -> u64 {
+        episode_seed(
+            DEMO_SEED + self.seed * 1_000 + 7,
+            u64::from(iteration) * u64::from(self.groups) + u64::from(group),
+        )
+    }
+
+    /// Start seed of the `i`-th noise-free episode that harvests stalls before the first
+    /// iteration.
+    pub fn harvest_seed(&self, i: u32) -> u64 {
+        episode_seed(DEMO_SEED + self.seed * 1_000 + 8, u64::from(i))
+    }
+
+    /// The pool entries the stall groups of iteration `i` start from: `stall_groups` of `pool`
+    /// (all of them when it holds fewer), without repeats.
+    pub fn stall_picks(&self, iteration: u32, pool: usize) -> Vec<usize> {
+        let mut left: Vec<usize> = (0..pool).collect();
+        let mut rng = Rng::derive(self.seed, 0x6770_5000 + u64::from(iteration));
+        (0..(self.stall_groups as usize).min(pool))
+            .map(|_| left.swap_remove(rng.below(left.len())))
+            .collect()
+    }
+
+    /// How many of an iteration's groups revisit a start, with `hard` starts to choose from.
+    pub fn revisits(&self, hard: usize) -> usize {
+        ((self.revisit * self.groups as f32).round() as usize).min(hard)
+    }
+
+    /// The start seeds of iteration `i`: the first `revisit * groups` (at most as many as
+    /// `hard` holds) drawn from `hard` without repeats, the rest fresh.
+    pub fn starts(&self, iteration: u32, hard: &[u64]) -> Vec<u64> {
+        let k = self.revisits(hard.len());
+        let mut pool = hard.to_vec();
+        let mut rng = Rng::derive(self.seed, 0x6770_4000 + u64::from(iteration));
+        let mut out = Vec::with_capacity(self.groups as usize);
+        for _ in 0..k {
+            out.push(pool.swap_remove(rng.below(pool.len())));
+        }
+        for g in k as u32..self.groups {
+            out.push(self.start_seed(iteration, g));
+        }
+        out
+    }
+}

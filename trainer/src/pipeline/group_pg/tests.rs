@@ -1,0 +1,114 @@
+//! Unit tests of the fine-tune's pieces: the report line, the starts, the pools.
+
+use std::path::PathBuf;
+
+use super::rollouts::{Episode, HARD_STARTS};
+use super::*;
+
+#[test]
+fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
+    let mut r = IterationReport {
+        iteration: 0,
+        episodes: 160,
+        successes: 82,
+        mixed_groups: 8,
+        samples: 0,
+        clipped: 0.1,
+        drift: 0.06,
+        env_steps: 466_968,
+        stall_groups: 0,
+        stall_successes: 0,
+        stall_pool: 0,
+    };
+    let plain = r.line(8);
+    assert!(
+        plain.starts_with("iteration 1 success 82/160 with noise"),
+        "{plain}"
+    );
+    assert!(!plain.contains("from stalls"), "{plain}");
+    (r.stall_groups, r.stall_successes, r.stall_pool) = (16, 50, 16);
+    assert!(
+        r.line(8)
+            .ends_with("; from stalls 50/128 (16 groups, pool 16)"),
+        "{}",
+        r.line(8)
+    );
+}
+
+fn settings(revisit: f32) -> GroupPg {
+    GroupPg {
+        groups: 8,
+        revisit,
+        ..GroupPg::new(PathBuf::from("p.dxpl"))
+    }
+}
+
+#[test]
+fn revisits_take_their_share_from_the_hard_starts_without_repeats() {
+    let fresh = settings(0.0).starts(3, &[1, 2, 3]);
+    let expected: Vec<u64> = (0..8).map(|g| settings(0.0).start_seed(3, g)).collect();
+    assert_eq!(fresh, expected, "without revisits every start is fresh");
+    let s = settings(0.5);
+    let mixed = s.starts(3, &[11, 12, 13, 14, 15, 16]);
+    assert_eq!(mixed.len(), 8);
+    let (old, new) = mixed.split_at(4);
+    assert!(old.iter().all(|x| (11..=16).contains(x)));
+    let mut sorted = old.to_vec();
+    sorted.sort_unstable();
+    sorted.dedup();
+    assert_eq!(
+        sorted.len(),
+        4,
+        "a hard start is revisited once per iteration"
+    );
+    assert_eq!(new, &expected[4..]);
+    // Fewer hard starts than the share: all of them, the rest fresh.
+    let few = s.starts(3, &[11]);
+    assert_eq!(few[0], 11);
+    assert_eq!(&few[1..], &expected[1..]);
+    assert_eq!(s.starts(3, &[11, 12, 13]), s.starts(3, &[11, 12, 13]));
+}
+
+fn ep(success: bool) -> Episode {
+    Episode {
+        obs: Vec::new(),
+        noise: Vec::new(),
+        success,
+        stall: None,
+    }
+}
+
+#[test]
+fn the_stall_pool_keeps_one_entry_per_seed_and_step_and_the_newest() {
+    let snap = |steps: u32| {
+        let json = format!("{{\"state\":[0.0],\"steps\":{steps}}}");
+        serde_json::from_str::<crate::env::EnvSnapshot>(&json).unwrap()
+    };
+    let entry = |seed: u64, steps: u32| StallStart {
+        seed,
+        snapshot: snap(steps),
+    };
+    let mut pool = vec![entry(1, 60)];
+    remember_stalls(&mut pool, vec![entry(1, 60), entry(1, 70), entry(2, 60)]);
+    assert_eq!(pool, vec![entry(1, 60), entry(1, 70), entry(2, 60)]);
+    let many: Vec<StallStart> = (0..STALL_POOL as u64 + 5)
+        .map(|s| entry(s + 10, 60))
+        .collect();
+    remember_stalls(&mut pool, many);
+    assert_eq!(pool.len(), STALL_POOL);
+    assert_eq!(pool.last(), Some(&entry(STALL_POOL as u64 + 14, 60)));
+}
+
+#[test]
+fn a_start_stays_hard_while_its_group_fails() {
+    let mut hard = vec![5, 7];
+    let episodes = [ep(false), ep(true), ep(true), ep(true), ep(true), ep(true)];
+    remember_hard(&mut hard, &[9, 7, 5], &episodes, 2);
+    // 9 failed once (kept, newest), 7 and 5 succeeded every time (dropped).
+    assert_eq!(hard, vec![9]);
+    let mut many: Vec<u64> = (0..HARD_STARTS as u64).collect();
+    remember_hard(&mut many, &[1000], &[ep(false), ep(false)], 2);
+    assert_eq!(many.len(), HARD_STARTS);
+    assert_eq!(many.last(), Some(&1000));
+    assert_eq!(many[0], 1, "the oldest start is dropped");
+}
