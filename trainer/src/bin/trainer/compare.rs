@@ -12,7 +12,6 @@ use dex_trainer::cell::proposal_pair::ProposalPair;
 use dex_trainer::env::evaluate::{
     demonstration_outcomes, ensemble_outcomes, episode_outcomes, teacher_outcomes,
 };
-use dex_trainer::files::atomic_write::write_atomic;
 use dex_trainer::files::comparison_record::{ComparedEntry, ComparedPair, ComparisonRecord};
 use dex_trainer::files::result_record::sha256_hex;
 use dex_trainer::pipeline::train_settings::TaskArg;
@@ -163,10 +162,7 @@ pub fn compare(args: &CompareArgs) -> anyhow::Result<()> {
     );
     print_comparison(&report.entries, &report.pairs);
     if let Some(path) = &args.json {
-        let json = serde_json::to_string_pretty(&report)?;
-        write_atomic(path, json.as_bytes())
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        println!("comparison written to {}", path.display());
+        crate::write_json(path, &report)?;
     }
     Ok(())
 }

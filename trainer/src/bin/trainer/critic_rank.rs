@@ -4,12 +4,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::Args;
 
 use dex_trainer::cell::critic_ranking::{RankedRun, RankingSettings};
 use dex_trainer::env::seeds::RANKING_SEED;
-use dex_trainer::files::atomic_write::write_atomic;
 
 use crate::train::{bar, load_scene};
 
@@ -126,9 +124,7 @@ pub fn critic_rank(args: &CriticRankArgs) -> anyhow::Result<()> {
         );
     }
     if let Some(path) = &args.json {
-        write_atomic(path, serde_json::to_string_pretty(&report)?.as_bytes())
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        println!("wrote {}", path.display());
+        crate::write_json(path, &report)?;
     }
     Ok(())
 }

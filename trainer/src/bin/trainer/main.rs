@@ -411,6 +411,19 @@ fn export_int8(
     Ok(())
 }
 
+/// Writes `value` as pretty JSON to `path` (atomically) and says so: the `--json` report of
+/// `compare`, `pool` and `critic-rank`.
+pub(crate) fn write_json(
+    path: &std::path::Path,
+    value: &impl serde::Serialize,
+) -> anyhow::Result<()> {
+    let json = serde_json::to_string_pretty(value)?;
+    dex_trainer::files::atomic_write::write_atomic(path, json.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {

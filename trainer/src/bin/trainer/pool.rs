@@ -4,10 +4,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::Args;
 
-use dex_trainer::files::atomic_write::write_atomic;
 use dex_trainer::files::comparison_record::{ComparisonRecord, pool as pool_records};
 
 use crate::compare::print_comparison;
@@ -46,10 +44,7 @@ pub fn pool(args: &PoolArgs) -> anyhow::Result<()> {
     );
     print_comparison(&pooled.entries, &pooled.pairs);
     if let Some(path) = &args.json {
-        let json = serde_json::to_string_pretty(&pooled)?;
-        write_atomic(path, json.as_bytes())
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        println!("pooled comparison written to {}", path.display());
+        crate::write_json(path, &pooled)?;
     }
     Ok(())
 }
