@@ -277,12 +277,9 @@ pub fn pool(
     records: &[(String, ComparisonRecord)],
     command: String,
 ) -> Result<PooledComparison, ComparisonError> {
-    let [(first_name, first), ..] = records else {
+    let [(first_name, first), _, ..] = records else {
         return Err(ComparisonError::TooFew(records.len()));
     };
-    if records.len() < 2 {
-        return Err(ComparisonError::TooFew(records.len()));
-    }
     for (name, r) in records {
         r.check(name)?;
         let mismatch = |what: String| ComparisonError::Mismatch {
