@@ -115,6 +115,13 @@ fn settings_out_of_range_are_refused() {
         ),
         (
             GroupPg {
+                stall_noise_steps: 30,
+                ..small()
+            },
+            "stall_noise_steps limits the noise of stall_groups",
+        ),
+        (
+            GroupPg {
                 stall_groups: 4,
                 stall_back: 101,
                 ..small()
@@ -250,6 +257,50 @@ fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }
+}
+
+#[test]
+fn stall_noise_steps_keep_only_the_noisy_steps_of_the_stall_groups() {
+    let scene = Scene::load().unwrap();
+    let window = 30u64;
+    let s = GroupPg {
+        stall_noise_steps: window as u32,
+        ..stall_run()
+    };
+    let run_of = |s: &GroupPg, name: &str| {
+        let dir = tmp(name);
+        let mut reports: Vec<IterationReport> = Vec::new();
+        let file = run(s, &scene, Task::Stack, &dir, 2, 0, &mut |r| {
+            reports.push(r.clone())
+        })
+        .unwrap();
+        let _ = std::fs::remove_dir_all(dir);
+        (file, reports)
+    };
+    let (file, reports) = run_of(&s, "stall-window");
+    let (whole, whole_reports) = run_of(&stall_run(), "stall-window-whole");
+    // The episodes run to the task's end either way: the same steps are counted.
+    assert_eq!(reports[0].env_steps, whole_reports[0].env_steps);
+    // The fresh group keeps its four whole episodes (150 steps each) when it carries a
+    // gradient; the stall group only its episodes' first `window` steps.
+    let fresh = 4 * 150;
+    let stall = 4 * window;
+    for r in &reports {
+        assert!(
+            [0, stall, fresh, fresh + stall].contains(&r.samples),
+            "{r:?}"
+        );
+    }
+    assert!(
+        reports.iter().any(|r| r.samples % fresh == stall),
+        "the stall group never had both outcomes with noise on its first {window} steps: {reports:?}"
+    );
+    assert_ne!(file, whole, "the window changed nothing");
+    assert_eq!(
+        file,
+        run_of(&s, "stall-window-again").0,
+        "the window is not deterministic"
+    );
 }
 
 /// Session 14's Stack clone; with seed 2 its noise-free episodes from the harvest block stall

@@ -69,6 +69,10 @@ pub struct PgArgs {
     /// Steps before each stall that the pool keeps (0: the stalled state; needs `--stall-groups`).
     #[arg(long)]
     stall_back: Option<u32>,
+    /// Steps at the beginning of each stall group's episodes that carry noise; the rest run the
+    /// policy's own action and stay out of the update (0: every step; needs `--stall-groups`).
+    #[arg(long)]
+    stall_noise_steps: Option<u32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -102,6 +106,7 @@ impl PgArgs {
             stall_harvest: self.stall_harvest.unwrap_or(d.stall_harvest),
             fresh_anchor: self.fresh_anchor.unwrap_or(d.fresh_anchor),
             stall_back: self.stall_back.unwrap_or(d.stall_back),
+            stall_noise_steps: self.stall_noise_steps.unwrap_or(d.stall_noise_steps),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         }

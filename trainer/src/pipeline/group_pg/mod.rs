@@ -33,7 +33,8 @@
 //! (`stall_harvest` of them, from their own seed block `+ 8`) and from the first noisy episode of
 //! each start-seed group that stalled and failed, one per seed and step, the newest
 //! [`STALL_POOL`] kept in the checkpoint. Episodes from a stall run from its
-//! step to the task's last.
+//! step to the task's last; with `stall_noise_steps` only their first steps carry noise and
+//! enter the update (session 35: the rest is the noise-free policy the file will run).
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -237,7 +238,7 @@ pub fn run_until(
             .filter_map(|group| group.iter_mut().find_map(|e| e.stall.take()))
             .collect();
         remember_stalls(&mut stalls, found);
-        env_steps += episodes.iter().map(|e| e.obs.len() as u64).sum::<u64>();
+        env_steps += episodes.iter().map(|e| e.steps).sum::<u64>();
         let mut report = update(
             settings,
             &mut actor,

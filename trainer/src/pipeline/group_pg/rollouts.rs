@@ -11,11 +11,13 @@ use crate::pipeline::stall_starts::{StallStart, StallWatch};
 
 use super::{GroupPg, GroupPgError, STALL_POOL};
 
-/// One noisy episode: the observations the controller saw (CAN-quantised), the noise added to
-/// each action, the outcome, and (from a start seed) the state where it stalled before failing.
+/// One noisy episode: the observations the controller saw (CAN-quantised) and the noise added to
+/// the action at each noisy step, the steps it ran, the outcome, and (from a start seed) the
+/// state where it stalled before failing.
 pub(super) struct Episode {
     pub(super) obs: Vec<[f32; OBS_DIM]>,
     pub(super) noise: Vec<[f32; ACT_DIM]>,
+    pub(super) steps: u64,
     pub(super) success: bool,
     pub(super) stall: Option<StallStart>,
 }
@@ -110,7 +112,9 @@ pub(super) fn rollouts(
 }
 
 /// One noisy episode from the environment's current state `o` to the task's last step. With
-/// `seed` (an episode from a start seed) it also watches for the stall.
+/// `seed` (an episode from a start seed) it also watches for the stall; without one (an episode
+/// from a stalled state) only its first [`GroupPg::stall_noise_steps`] steps carry noise (all of
+/// them when that is 0) and only those are kept for the update.
 pub(super) fn episode(
     s: &GroupPg,
     env: &mut JacoEnv,
@@ -123,14 +127,22 @@ pub(super) fn episode(
     // Only the start-seed episodes feed the pool.
     let watching = seed.is_some() && s.stall_groups > 0;
     let mut watch = StallWatch::new(s.stall_back as usize);
+    let noisy_steps = match (seed, s.stall_noise_steps) {
+        (None, n) if n > 0 => u64::from(n),
+        _ => u64::MAX,
+    };
+    let mut steps = 0u64;
     loop {
         let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
-        let e: [f32; ACT_DIM] = std::array::from_fn(|j| rng.normal(0.0, s.sigma(j)));
-        for (x, n) in a.iter_mut().zip(&e) {
-            *x = (*x + n).clamp(-1.0, 1.0);
+        if steps < noisy_steps {
+            let e: [f32; ACT_DIM] = std::array::from_fn(|j| rng.normal(0.0, s.sigma(j)));
+            for (x, n) in a.iter_mut().zip(&e) {
+                *x = (*x + n).clamp(-1.0, 1.0);
+            }
+            obs.push(std::array::from_fn(|i| quantise_observation(i, o[i])));
+            noise.push(e);
         }
-        obs.push(std::array::from_fn(|i| quantise_observation(i, o[i])));
-        noise.push(e);
+        steps += 1;
         if watching {
             watch.before_step(env);
         }
@@ -147,6 +159,7 @@ pub(super) fn episode(
             return Ok(Episode {
                 obs,
                 noise,
+                steps,
                 success: out.success,
                 stall,
             });

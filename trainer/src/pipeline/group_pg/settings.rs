@@ -99,6 +99,13 @@ pub struct GroupPg {
     /// a noise-free policy can avoid the stall rather than escape it (session 32).
     #[serde(default)]
     pub stall_back: u32,
+    /// Steps at the beginning of each episode from a stalled state that carry the noise (0: all
+    /// of them). The rest run the policy's own action and stay out of the update, so an episode
+    /// succeeds when a perturbation in its first steps puts the *noise-free* policy on a path
+    /// that works, the behaviour the flashed file needs; with noise on every step the groups
+    /// learn grasps that only the noise makes work (sessions 31-33).
+    #[serde(default)]
+    pub stall_noise_steps: u32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -123,6 +130,7 @@ impl GroupPg {
             stall_harvest: 0,
             fresh_anchor: 0.0,
             stall_back: 0,
+            stall_noise_steps: 0,
             seed: 1,
         }
     }
@@ -163,6 +171,9 @@ impl GroupPg {
         }
         if self.stall_back > 0 && self.stall_groups == 0 {
             return bad("stall_back places the states of stall_groups, which is 0");
+        }
+        if self.stall_noise_steps > 0 && self.stall_groups == 0 {
+            return bad("stall_noise_steps limits the noise of stall_groups, which is 0");
         }
         if self.stall_back > MAX_STALL_BACK {
             return bad("stall_back must be at most 100 steps");

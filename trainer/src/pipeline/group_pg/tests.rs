@@ -73,6 +73,7 @@ fn ep(success: bool) -> Episode {
     Episode {
         obs: Vec::new(),
         noise: Vec::new(),
+        steps: 0,
         success,
         stall: None,
     }

@@ -47,6 +47,8 @@ pub struct PgStage {
     pub fresh_anchor: f32,
     /// Steps before each stall that the pool keeps.
     pub stall_back: u32,
+    /// Steps at the beginning of each stall group's episodes that carry noise (0: every step).
+    pub stall_noise_steps: u32,
     /// Keep the actor as `policy-NNNN.dxpl` every this many iterations (0: only the latest).
     pub save_every: u32,
 }
@@ -86,6 +88,7 @@ impl PgStage {
             stall_harvest: g.stall_harvest,
             fresh_anchor: g.fresh_anchor,
             stall_back: g.stall_back,
+            stall_noise_steps: g.stall_noise_steps,
             save_every: 10,
         }
     }
@@ -109,6 +112,7 @@ impl PgStage {
             stall_harvest: self.stall_harvest,
             fresh_anchor: self.fresh_anchor,
             stall_back: self.stall_back,
+            stall_noise_steps: self.stall_noise_steps,
             seed,
         }
     }
