@@ -39,8 +39,6 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use serde::{Deserialize, Serialize};
-
 use crate::env::{Scene, Task};
 use crate::files::atomic_write::write_atomic;
 use crate::files::export::ExportInfo;
@@ -48,6 +46,7 @@ use crate::learn::adam::{AdamConfig, AdamLocal, AdamShared};
 use crate::pipeline::file_actor::FileActor;
 use crate::pipeline::stall_starts::{StallStart, harvest};
 
+mod checkpoint;
 mod report;
 mod rollouts;
 mod settings;
@@ -58,29 +57,17 @@ mod update;
 pub use report::IterationReport;
 pub use settings::{GroupPg, GroupPgError};
 
+use checkpoint::Checkpoint;
 use rollouts::{Start, remember_hard, remember_stalls, rollouts};
 use update::update;
 
-/// The checkpoint of a run folder (parameters, Adam's moments, the next iteration).
+/// The checkpoint of a run folder (parameters, Adam's moments, the next iteration; its layout:
+/// `group_pg/checkpoint.rs`: a versioned header, then the state).
 pub const CHECKPOINT: &str = "group-pg.ckpt";
 /// One JSON line per iteration, in the run folder.
 pub const PROGRESS: &str = "group-pg.jsonl";
 /// The latest iteration's actor, in the run folder.
 pub const LATEST: &str = "policy-latest.dxpl";
-
-#[derive(Serialize, Deserialize)]
-struct Checkpoint {
-    settings: GroupPg,
-    next_iteration: u32,
-    env_steps: u64,
-    params: Vec<f32>,
-    m: Vec<f32>,
-    v: Vec<f32>,
-    t_local: u64,
-    t_shared: u64,
-    hard: Vec<u64>,
-    stalls: Vec<StallStart>,
-}
 
 /// Most steps [`GroupPg::stall_back`] may reach back (each watched episode keeps that many
 /// snapshots).
@@ -149,7 +136,7 @@ pub fn run_until(
             path: ckpt_path.clone(),
             why,
         };
-        let c: Checkpoint = postcard::from_bytes(&bytes).map_err(|e| bad(e.to_string()))?;
+        let c = Checkpoint::decode(&bytes).map_err(bad)?;
         // The budget may grow on resumption (as `trainer train --resume --transitions`); any
         // other change would make the run a mixture of two.
         let same = GroupPg {
@@ -275,9 +262,9 @@ pub fn run_until(
             hard: hard.clone(),
             stalls: stalls.clone(),
         };
-        let bytes = postcard::to_allocvec(&ckpt).map_err(|e| GroupPgError::Checkpoint {
+        let bytes = ckpt.encode().map_err(|why| GroupPgError::Checkpoint {
             path: ckpt_path.clone(),
-            why: e.to_string(),
+            why,
         })?;
         save(CHECKPOINT.to_owned(), &bytes)?;
         let line = serde_json::to_string(&report).unwrap_or_default();
