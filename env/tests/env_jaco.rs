@@ -226,3 +226,33 @@ fn environments_can_move_between_threads() {
     assert_send::<Scene>();
     assert_sync::<Scene>();
 }
+
+#[test]
+fn close_starts_keep_the_bricks_close_and_repeat_by_seed() {
+    let scene = scene();
+    let mut env = JacoEnv::new(&scene, EnvConfig::new(Task::Stack));
+    let (b1, b2) = (
+        field_offset("brick1_pos").unwrap(),
+        field_offset("brick2_pos").unwrap(),
+    );
+    let spacing = |o: &[f32; OBS_DIM]| (o[b1] - o[b2]).hypot(o[b1 + 1] - o[b2 + 1]);
+    let min = dex_env::random_start::MIN_BRICK_SPACING as f32;
+    for seed in 0..8 {
+        let o = env.reset_close(seed, 0.09).unwrap();
+        let d = spacing(&o);
+        // The bricks settle by a fraction of a millimetre after they are placed.
+        assert!(d > min - 1e-3 && d < 0.09 + 1e-3, "seed {seed}: {d}");
+        let again = env.reset_close(seed, 0.09).unwrap();
+        assert_eq!(bits(&[o]), bits(&[again]), "seed {seed} repeats");
+    }
+    // Above the start square's diagonal the condition is no condition: the task's own start.
+    let plain = env.reset(3).unwrap();
+    let wide = env.reset_close(3, 1.0).unwrap();
+    assert_eq!(bits(&[plain]), bits(&[wide]));
+    // No start has the bricks closer than they may be placed.
+    assert!(matches!(
+        env.reset_close(3, 0.05),
+        Err(EnvError::StartState { .. })
+    ));
+    assert!(env.reset_close(3, f64::NAN).is_err());
+}

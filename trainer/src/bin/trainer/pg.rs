@@ -73,6 +73,14 @@ pub struct PgArgs {
     /// policy's own action and stay out of the update (0: every step; needs `--stall-groups`).
     #[arg(long)]
     stall_noise_steps: Option<u32>,
+    /// Groups per iteration, beside `--groups`, from fresh starts drawn with the bricks' centres
+    /// at most `--close-spacing` apart, where the Stack files' failures lie.
+    #[arg(long)]
+    close_groups: Option<u32>,
+    /// The close groups' largest spacing of the bricks' centres, metres (default 0.095; needs
+    /// `--close-groups`).
+    #[arg(long)]
+    close_spacing: Option<f32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -107,6 +115,8 @@ impl PgArgs {
             fresh_anchor: self.fresh_anchor.unwrap_or(d.fresh_anchor),
             stall_back: self.stall_back.unwrap_or(d.stall_back),
             stall_noise_steps: self.stall_noise_steps.unwrap_or(d.stall_noise_steps),
+            close_groups: self.close_groups.unwrap_or(d.close_groups),
+            close_spacing: self.close_spacing.unwrap_or(d.close_spacing),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         }
@@ -117,6 +127,9 @@ impl PgArgs {
 pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
     let settings = args.settings();
     settings.validate()?;
+    if args.close_spacing.is_some() && settings.close_groups == 0 {
+        anyhow::bail!("--close-spacing places the starts of --close-groups, which is 0");
+    }
     let task = settings.task()?;
     let scene = load_scene()?;
     let stop = stop_flag()?;

@@ -35,6 +35,11 @@
 //! [`STALL_POOL`] kept in the checkpoint. Episodes from a stall run from its
 //! step to the task's last; with `stall_noise_steps` only their first steps carry noise and
 //! enter the update (session 35: the rest is the noise-free policy the file will run).
+//!
+//! With `close_groups` (session 36), each iteration also runs that many groups from fresh starts
+//! drawn with the bricks close together ([`crate::env::JacoEnv::reset_close`], their own seed
+//! block `+ 9`), where the Stack files' failures lie; like the stall groups they carry no fresh
+//! anchor, and they are not revisited or watched for stalls.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -209,6 +214,11 @@ pub fn run_until(
                 Start::Seed(seed, tag)
             })
             .collect();
+        // Close groups: new starts every iteration, each used once.
+        starts.extend(
+            (0..settings.close_groups)
+                .map(|g| Start::Close(settings.close_seed(iteration, g), 0x6772_0000)),
+        );
         starts.extend(picks.iter().map(|&p| {
             let s = &stalls[p];
             let tag = (0x6771 << 48)
@@ -218,8 +228,12 @@ pub fn run_until(
         }));
         let mut episodes = rollouts(settings, scene, task, &policy, &starts, threads)?;
         remember_hard(&mut hard, &seeds, &episodes, reps);
-        let from_stalls = &episodes[seeds.len() * reps..];
-        let stall_successes = from_stalls.iter().filter(|e| e.success).count() as u32;
+        let close_end = (seeds.len() + settings.close_groups as usize) * reps;
+        let close_successes = episodes[seeds.len() * reps..close_end]
+            .iter()
+            .filter(|e| e.success)
+            .count() as u32;
+        let stall_successes = episodes[close_end..].iter().filter(|e| e.success).count() as u32;
         let found: Vec<StallStart> = episodes[..seeds.len() * reps]
             .chunks_mut(reps)
             .filter_map(|group| group.iter_mut().find_map(|e| e.stall.take()))
@@ -241,6 +255,8 @@ pub fn run_until(
         report.stall_groups = picks.len() as u32;
         report.stall_successes = stall_successes;
         report.stall_pool = stalls.len() as u32;
+        report.close_groups = settings.close_groups;
+        report.close_successes = close_successes;
         policy = actor.export(&info(env_steps))?;
         let save = |name: String, bytes: &[u8]| {
             let p = dir.join(name);

@@ -30,13 +30,20 @@ pub struct IterationReport {
     /// Stalled states in the pool after the iteration.
     #[serde(default)]
     pub stall_pool: u32,
+    /// Groups run from close starts (counted in `episodes`).
+    #[serde(default)]
+    pub close_groups: u32,
+    /// Of their episodes, successful.
+    #[serde(default)]
+    pub close_successes: u32,
 }
 
 impl IterationReport {
     /// One line for a terminal (`trainer pg --quiet`, `trainer train`'s `[pg]` stage): the
     /// iteration, its successes with the noise, the groups with a gradient, the clipped share,
     /// the drift, the environment steps and, when it ran stall groups or holds stalls, their
-    /// episodes' successes (each group `replicates` episodes) and the pool.
+    /// episodes' successes (each group `replicates` episodes) and the pool, and likewise the
+    /// close groups' successes.
     pub fn line(&self, replicates: u32) -> String {
         let mut line = format!(
             "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, \
@@ -49,6 +56,14 @@ impl IterationReport {
             self.drift,
             self.env_steps
         );
+        if self.close_groups > 0 {
+            line += &format!(
+                "; from close starts {}/{} ({} groups)",
+                self.close_successes,
+                self.close_groups * replicates,
+                self.close_groups
+            );
+        }
         if self.stall_groups > 0 || self.stall_pool > 0 {
             line += &format!(
                 "; from stalls {}/{} ({} groups, pool {})",

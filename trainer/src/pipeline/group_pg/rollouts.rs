@@ -26,6 +26,9 @@ pub(super) struct Episode {
 pub(super) enum Start<'a> {
     /// A start seed and the noise stream tag of its episodes.
     Seed(u64, u64),
+    /// A start seed whose start is drawn with the bricks close
+    /// ([`GroupPg::close_spacing`]), and the noise stream tag of its episodes.
+    Close(u64, u64),
     /// A stalled state and the noise stream tag of its episodes.
     Stall(&'a StallStart, u64),
 }
@@ -98,12 +101,19 @@ pub(super) fn rollouts(
                 Start::Seed(seed, tag) => {
                     let o = env.reset(*seed).map_err(EvalError::from)?;
                     let mut rng = Rng::derive(*seed, tag + k);
-                    episode(s, env, mlp, o, Some(*seed), &mut rng)
+                    episode(s, env, mlp, o, Origin::Seed(*seed), &mut rng)
+                }
+                Start::Close(seed, tag) => {
+                    let o = env
+                        .reset_close(*seed, f64::from(s.close_spacing))
+                        .map_err(EvalError::from)?;
+                    let mut rng = Rng::derive(*seed, tag + k);
+                    episode(s, env, mlp, o, Origin::Close, &mut rng)
                 }
                 Start::Stall(stall, tag) => {
                     let o = env.restore(&stall.snapshot).map_err(EvalError::from)?;
                     let mut rng = Rng::derive(stall.seed, tag + k);
-                    episode(s, env, mlp, o, None, &mut rng)
+                    episode(s, env, mlp, o, Origin::Stall, &mut rng)
                 }
             }
         },
@@ -111,24 +121,39 @@ pub(super) fn rollouts(
     )
 }
 
-/// One noisy episode from the environment's current state `o` to the task's last step. With
-/// `seed` (an episode from a start seed) it also watches for the stall; without one (an episode
-/// from a stalled state) only its first [`GroupPg::stall_noise_steps`] steps carry noise (all of
-/// them when that is 0) and only those are kept for the update.
+/// Where an episode began, for what it does besides its noisy steps.
+#[derive(Clone, Copy)]
+pub(super) enum Origin {
+    /// A start seed: the episode watches for the stall that feeds the pool.
+    Seed(u64),
+    /// A close start: neither watched nor windowed.
+    Close,
+    /// A stalled state: only its first [`GroupPg::stall_noise_steps`] steps carry noise.
+    Stall,
+}
+
+/// One noisy episode from the environment's current state `o` to the task's last step. From a
+/// start seed it also watches for the stall; from a stalled state only its first
+/// [`GroupPg::stall_noise_steps`] steps carry noise (all of them when that is 0) and only those
+/// are kept for the update.
 pub(super) fn episode(
     s: &GroupPg,
     env: &mut JacoEnv,
     mlp: &mut RuntimeMlp<'_, EVAL_WIDTH>,
     mut o: [f32; OBS_DIM],
-    seed: Option<u64>,
+    origin: Origin,
     rng: &mut Rng,
 ) -> Result<Episode, GroupPgError> {
     let (mut obs, mut noise) = (Vec::with_capacity(160), Vec::with_capacity(160));
     // Only the start-seed episodes feed the pool.
+    let seed = match origin {
+        Origin::Seed(seed) => Some(seed),
+        Origin::Close | Origin::Stall => None,
+    };
     let watching = seed.is_some() && s.stall_groups > 0;
     let mut watch = StallWatch::new(s.stall_back as usize);
-    let noisy_steps = match (seed, s.stall_noise_steps) {
-        (None, n) if n > 0 => u64::from(n),
+    let noisy_steps = match (origin, s.stall_noise_steps) {
+        (Origin::Stall, n) if n > 0 => u64::from(n),
         _ => u64::MAX,
     };
     let mut steps = 0u64;

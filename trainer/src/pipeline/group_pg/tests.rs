@@ -19,6 +19,8 @@ fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
         stall_groups: 0,
         stall_successes: 0,
         stall_pool: 0,
+        close_groups: 0,
+        close_successes: 0,
     };
     let plain = r.line(8);
     assert!(

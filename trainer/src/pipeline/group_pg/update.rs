@@ -76,6 +76,8 @@ pub(super) fn update(
         stall_groups: 0,
         stall_successes: 0,
         stall_pool: 0,
+        close_groups: 0,
+        close_successes: 0,
     };
     if samples == 0 {
         return Ok(report);

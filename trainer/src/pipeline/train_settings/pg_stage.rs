@@ -49,6 +49,10 @@ pub struct PgStage {
     pub stall_back: u32,
     /// Steps at the beginning of each stall group's episodes that carry noise (0: every step).
     pub stall_noise_steps: u32,
+    /// Groups per iteration from fresh starts with the bricks close together.
+    pub close_groups: u32,
+    /// The close groups' largest spacing of the bricks' centres, metres.
+    pub close_spacing: f32,
     /// Keep the actor as `policy-NNNN.dxpl` every this many iterations (0: only the latest).
     pub save_every: u32,
 }
@@ -89,6 +93,8 @@ impl PgStage {
             fresh_anchor: g.fresh_anchor,
             stall_back: g.stall_back,
             stall_noise_steps: g.stall_noise_steps,
+            close_groups: g.close_groups,
+            close_spacing: g.close_spacing,
             save_every: 10,
         }
     }
@@ -113,6 +119,8 @@ impl PgStage {
             fresh_anchor: self.fresh_anchor,
             stall_back: self.stall_back,
             stall_noise_steps: self.stall_noise_steps,
+            close_groups: self.close_groups,
+            close_spacing: self.close_spacing,
             seed,
         }
     }
