@@ -230,7 +230,7 @@ fn environments_can_move_between_threads() {
 #[test]
 fn close_starts_keep_the_bricks_close_and_repeat_by_seed() {
     let scene = scene();
-    let mut env = JacoEnv::new(&scene, EnvConfig::new(Task::Stack));
+    let mut env = JacoEnv::new(scene, EnvConfig::new(Task::Stack));
     let (b1, b2) = (
         field_offset("brick1_pos").unwrap(),
         field_offset("brick2_pos").unwrap(),

@@ -435,5 +435,79 @@ fn the_command_line_writes_the_policy_and_refuses_bad_flags() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("clip must be in (0, 1)"));
     assert!(!dir.join("bad").exists());
+    let lone = Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
+        .arg(dir.join("lone"))
+        .args(["--close-spacing", "0.09"])
+        .output()
+        .unwrap();
+    assert!(!lone.status.success());
+    assert!(
+        String::from_utf8_lossy(&lone.stderr).contains("--close-groups, which is 0"),
+        "{}",
+        String::from_utf8_lossy(&lone.stderr)
+    );
+    assert!(!dir.join("lone").exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn close_groups_run_from_close_starts_and_repeat_and_resume_exactly() {
+    let scene = Scene::load().unwrap();
+    let s = GroupPg {
+        close_groups: 2,
+        stall_groups: 0,
+        stall_harvest: 0,
+        ..stall_run()
+    };
+    let (one, two, resumed) = (tmp("close-one"), tmp("close-two"), tmp("close-resumed"));
+    let mut reports: Vec<IterationReport> = Vec::new();
+    let first = run(&s, &scene, Task::Stack, &one, 1, 0, &mut |r| {
+        reports.push(r.clone());
+        if r.iteration == 0 {
+            std::fs::create_dir_all(&resumed).unwrap();
+            std::fs::copy(one.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
+        }
+    })
+    .unwrap();
+    for (i, r) in reports.iter().enumerate() {
+        // One fresh group and two close groups of four whole episodes each.
+        assert_eq!((r.close_groups, r.episodes), (2, 12), "{r:?}");
+        assert_eq!(r.env_steps, (i as u64 + 1) * 12 * 150, "{r:?}");
+        assert!(r.close_successes <= 8, "{r:?}");
+        assert!(r.line(4).contains("from close starts"), "{}", r.line(4));
+    }
+    let plain = run(
+        &GroupPg {
+            close_groups: 0,
+            ..s.clone()
+        },
+        &scene,
+        Task::Stack,
+        &two,
+        1,
+        0,
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_ne!(first, plain, "the close groups changed nothing");
+    let _ = std::fs::remove_dir_all(&two);
+    let on_two = run(&s, &scene, Task::Stack, &two, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, on_two, "the close groups depend on the thread count");
+    let again = run(&s, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, again, "the resumed run differs");
+    for d in [one, two, resumed] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+    // The spacing must lie above the bricks' least spacing and within the start square.
+    for bad in [0.08f32, 0.05, 0.5, f32::NAN] {
+        let s = GroupPg {
+            close_spacing: bad,
+            ..s.clone()
+        };
+        assert!(
+            matches!(s.validate(), Err(GroupPgError::Settings(_))),
+            "close_spacing {bad} accepted"
+        );
+    }
 }
