@@ -38,6 +38,29 @@ fn tmp(name: &str) -> std::path::PathBuf {
     d
 }
 
+/// Runs `s` in `dir` on one thread and returns its file and its reports; after the first
+/// iteration it copies the checkpoint into `resumed`, the state a run stopped there would have
+/// left.
+fn run_keeping_first_checkpoint(
+    s: &GroupPg,
+    scene: &Scene,
+    task: Task,
+    dir: &std::path::Path,
+    save_every: u32,
+    resumed: &std::path::Path,
+) -> (Vec<u8>, Vec<IterationReport>) {
+    let mut reports: Vec<IterationReport> = Vec::new();
+    let file = run(s, scene, task, dir, 1, save_every, &mut |r| {
+        reports.push(r.clone());
+        if r.iteration == 0 {
+            std::fs::create_dir_all(resumed).unwrap();
+            std::fs::copy(dir.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
+        }
+    })
+    .unwrap();
+    (file, reports)
+}
+
 #[test]
 fn settings_out_of_range_are_refused() {
     let scene = Scene::load().unwrap();
@@ -172,16 +195,7 @@ fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
     let scene = Scene::load().unwrap();
     let s = small();
     let (one, two, resumed) = (tmp("one"), tmp("two"), tmp("resumed"));
-    let mut reports: Vec<IterationReport> = Vec::new();
-    let first = run(&s, &scene, Task::Grasp, &one, 1, 1, &mut |r| {
-        reports.push(r.clone());
-        if r.iteration == 0 {
-            // The state a run stopped after its first iteration would have left.
-            std::fs::create_dir_all(&resumed).unwrap();
-            std::fs::copy(one.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
-        }
-    })
-    .unwrap();
+    let (first, reports) = run_keeping_first_checkpoint(&s, &scene, Task::Grasp, &one, 1, &resumed);
     assert_eq!(reports.len(), 2);
     assert!(
         reports.iter().any(|r| r.mixed_groups > 0 && r.samples > 0),
@@ -330,15 +344,7 @@ fn stall_groups_start_from_harvested_stalls_and_resume_exactly() {
     let scene = Scene::load().unwrap();
     let s = stall_run();
     let (one, two, resumed) = (tmp("stall-one"), tmp("stall-two"), tmp("stall-resumed"));
-    let mut reports: Vec<IterationReport> = Vec::new();
-    let first = run(&s, &scene, Task::Stack, &one, 1, 0, &mut |r| {
-        reports.push(r.clone());
-        if r.iteration == 0 {
-            std::fs::create_dir_all(&resumed).unwrap();
-            std::fs::copy(one.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
-        }
-    })
-    .unwrap();
+    let (first, reports) = run_keeping_first_checkpoint(&s, &scene, Task::Stack, &one, 0, &resumed);
     for r in &reports {
         assert_eq!(r.stall_groups, 1, "{r:?}");
         assert!(r.stall_pool >= 1, "{r:?}");
@@ -461,15 +467,7 @@ fn close_groups_run_from_close_starts_and_repeat_and_resume_exactly() {
         ..stall_run()
     };
     let (one, two, resumed) = (tmp("close-one"), tmp("close-two"), tmp("close-resumed"));
-    let mut reports: Vec<IterationReport> = Vec::new();
-    let first = run(&s, &scene, Task::Stack, &one, 1, 0, &mut |r| {
-        reports.push(r.clone());
-        if r.iteration == 0 {
-            std::fs::create_dir_all(&resumed).unwrap();
-            std::fs::copy(one.join(CHECKPOINT), resumed.join(CHECKPOINT)).unwrap();
-        }
-    })
-    .unwrap();
+    let (first, reports) = run_keeping_first_checkpoint(&s, &scene, Task::Stack, &one, 0, &resumed);
     for (i, r) in reports.iter().enumerate() {
         // One fresh group and two close groups of four whole episodes each.
         assert_eq!((r.close_groups, r.episodes), (2, 12), "{r:?}");
