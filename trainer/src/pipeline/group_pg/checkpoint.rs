@@ -20,10 +20,16 @@ pub const MAGIC: [u8; 4] = *b"DXPG";
 /// The layout this trainer writes and reads (little-endian after [`MAGIC`]).
 pub const VERSION: u16 = 1;
 
-/// A fine-tune's state after an iteration.
+/// A fine-tune's checkpoint: its settings and its state after an iteration.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Checkpoint {
     pub settings: GroupPg,
+    pub state: State,
+}
+
+/// What a run has done so far (layout 1 writes it after the settings' JSON, in postcard).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(super) struct State {
     pub next_iteration: u32,
     pub env_steps: u64,
     pub params: Vec<f32>,
@@ -35,42 +41,21 @@ pub(super) struct Checkpoint {
     pub stalls: Vec<StallStart>,
 }
 
-/// The body of layout 1 (after the header).
-#[derive(Serialize, Deserialize)]
-struct BodyV1 {
-    settings_json: String,
-    next_iteration: u32,
-    env_steps: u64,
-    params: Vec<f32>,
-    m: Vec<f32>,
-    v: Vec<f32>,
-    t_local: u64,
-    t_shared: u64,
-    hard: Vec<u64>,
-    stalls: Vec<StallStart>,
+/// Layout 1's bytes of `settings_json` and `state`, after the header.
+fn encode_v1(settings_json: &str, state: &State) -> Result<Vec<u8>, String> {
+    let mut out = MAGIC.to_vec();
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    postcard::to_extend(&(settings_json, state), out).map_err(|e| e.to_string())
 }
 
 impl Checkpoint {
     /// The file's bytes; the error says why it could not be written.
     pub fn encode(&self) -> Result<Vec<u8>, String> {
-        let body = BodyV1 {
-            settings_json: serde_json::to_string(&self.settings).map_err(|e| e.to_string())?,
-            next_iteration: self.next_iteration,
-            env_steps: self.env_steps,
-            params: self.params.clone(),
-            m: self.m.clone(),
-            v: self.v.clone(),
-            t_local: self.t_local,
-            t_shared: self.t_shared,
-            hard: self.hard.clone(),
-            stalls: self.stalls.clone(),
-        };
-        let mut out = MAGIC.to_vec();
-        out.extend_from_slice(&VERSION.to_le_bytes());
-        postcard::to_extend(&body, out).map_err(|e| e.to_string())
+        let json = serde_json::to_string(&self.settings).map_err(|e| e.to_string())?;
+        encode_v1(&json, &self.state)
     }
 
-    /// The state in `bytes`; the error says why it is refused.
+    /// The checkpoint in `bytes`; the error says why it is refused.
     pub fn decode(bytes: &[u8]) -> Result<Checkpoint, String> {
         let Some(rest) = bytes.strip_prefix(&MAGIC[..]) else {
             return Err(
@@ -90,21 +75,11 @@ impl Checkpoint {
                  the trainer that wrote it or another folder"
             ));
         }
-        let b: BodyV1 = postcard::from_bytes(body).map_err(|e| e.to_string())?;
+        let (json, state): (String, State) =
+            postcard::from_bytes(body).map_err(|e| e.to_string())?;
         let settings: GroupPg =
-            serde_json::from_str(&b.settings_json).map_err(|e| format!("its settings: {e}"))?;
-        Ok(Checkpoint {
-            settings,
-            next_iteration: b.next_iteration,
-            env_steps: b.env_steps,
-            params: b.params,
-            m: b.m,
-            v: b.v,
-            t_local: b.t_local,
-            t_shared: b.t_shared,
-            hard: b.hard,
-            stalls: b.stalls,
-        })
+            serde_json::from_str(&json).map_err(|e| format!("its settings: {e}"))?;
+        Ok(Checkpoint { settings, state })
     }
 }
 
@@ -121,15 +96,17 @@ mod tests {
                 stall_noise_steps: 60,
                 ..GroupPg::new(PathBuf::from("start.dxpl"))
             },
-            next_iteration: 7,
-            env_steps: 123_456,
-            params: vec![0.5, -1.25, 3.0],
-            m: vec![0.1, 0.2, 0.3],
-            v: vec![1e-6, 2e-6, 3e-6],
-            t_local: 21,
-            t_shared: 42,
-            hard: vec![9, 8],
-            stalls: Vec::new(),
+            state: State {
+                next_iteration: 7,
+                env_steps: 123_456,
+                params: vec![0.5, -1.25, 3.0],
+                m: vec![0.1, 0.2, 0.3],
+                v: vec![1e-6, 2e-6, 3e-6],
+                t_local: 21,
+                t_shared: 42,
+                hard: vec![9, 8],
+                stalls: Vec::new(),
+            },
         }
     }
 
@@ -146,24 +123,10 @@ mod tests {
         let c = checkpoint();
         let mut json: serde_json::Value = serde_json::to_value(&c.settings).unwrap();
         json.as_object_mut().unwrap().remove("stall_noise_steps");
-        let body = BodyV1 {
-            settings_json: json.to_string(),
-            next_iteration: c.next_iteration,
-            env_steps: c.env_steps,
-            params: c.params.clone(),
-            m: c.m.clone(),
-            v: c.v.clone(),
-            t_local: c.t_local,
-            t_shared: c.t_shared,
-            hard: c.hard.clone(),
-            stalls: Vec::new(),
-        };
-        let mut bytes = MAGIC.to_vec();
-        bytes.extend_from_slice(&VERSION.to_le_bytes());
-        let bytes = postcard::to_extend(&body, bytes).unwrap();
+        let bytes = encode_v1(&json.to_string(), &c.state).unwrap();
         let back = Checkpoint::decode(&bytes).unwrap();
         assert_eq!(back.settings.stall_noise_steps, 0);
-        assert_eq!(back.params, c.params);
+        assert_eq!(back.state, c.state);
     }
 
     #[test]

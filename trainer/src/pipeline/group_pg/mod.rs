@@ -62,7 +62,7 @@ mod update;
 pub use report::IterationReport;
 pub use settings::{GroupPg, GroupPgError};
 
-use checkpoint::Checkpoint;
+use checkpoint::{Checkpoint, State};
 use rollouts::{Start, remember_hard, remember_stalls, rollouts};
 use update::update;
 
@@ -155,6 +155,7 @@ pub fn run_until(
                     .to_owned(),
             ));
         }
+        let c = c.state;
         if c.params.len() != n || c.m.len() != n || c.v.len() != n {
             return Err(bad("its actor is not the starting file's shape".to_owned()));
         }
@@ -268,15 +269,17 @@ pub fn run_until(
         }
         let ckpt = Checkpoint {
             settings: settings.clone(),
-            next_iteration: iteration + 1,
-            env_steps,
-            params: actor.params.clone(),
-            m: local.m.clone(),
-            v: shared.v.clone(),
-            t_local: local.t,
-            t_shared: shared.t,
-            hard: hard.clone(),
-            stalls: stalls.clone(),
+            state: State {
+                next_iteration: iteration + 1,
+                env_steps,
+                params: actor.params.clone(),
+                m: local.m.clone(),
+                v: shared.v.clone(),
+                t_local: local.t,
+                t_shared: shared.t,
+                hard: hard.clone(),
+                stalls: stalls.clone(),
+            },
         };
         let bytes = ckpt.encode().map_err(|why| GroupPgError::Checkpoint {
             path: ckpt_path.clone(),
