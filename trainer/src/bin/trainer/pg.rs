@@ -81,6 +81,10 @@ pub struct PgArgs {
     /// `--close-groups`).
     #[arg(long)]
     close_spacing: Option<f32>,
+    /// Steps at the beginning of each close group's episodes that carry noise; the rest run the
+    /// policy's own action and stay out of the update (0: every step; needs `--close-groups`).
+    #[arg(long)]
+    close_noise_steps: Option<u32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -117,6 +121,7 @@ impl PgArgs {
             stall_noise_steps: self.stall_noise_steps.unwrap_or(d.stall_noise_steps),
             close_groups: self.close_groups.unwrap_or(d.close_groups),
             close_spacing: self.close_spacing.unwrap_or(d.close_spacing),
+            close_noise_steps: self.close_noise_steps.unwrap_or(d.close_noise_steps),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         }

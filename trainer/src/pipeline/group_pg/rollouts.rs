@@ -126,7 +126,8 @@ pub(super) fn rollouts(
 pub(super) enum Origin {
     /// A start seed: the episode watches for the stall that feeds the pool.
     Seed(u64),
-    /// A close start: neither watched nor windowed.
+    /// A close start: not watched; only its first [`GroupPg::close_noise_steps`] steps carry
+    /// noise.
     Close,
     /// A stalled state: only its first [`GroupPg::stall_noise_steps`] steps carry noise.
     Stall,
@@ -134,8 +135,8 @@ pub(super) enum Origin {
 
 /// One noisy episode from the environment's current state `o` to the task's last step. From a
 /// start seed it also watches for the stall; from a stalled state only its first
-/// [`GroupPg::stall_noise_steps`] steps carry noise (all of them when that is 0) and only those
-/// are kept for the update.
+/// [`GroupPg::stall_noise_steps`] steps carry noise (all of them when that is 0), from a close
+/// start only its first [`GroupPg::close_noise_steps`], and only those are kept for the update.
 pub(super) fn episode(
     s: &GroupPg,
     env: &mut JacoEnv,
@@ -152,9 +153,14 @@ pub(super) fn episode(
     };
     let watching = seed.is_some() && s.stall_groups > 0;
     let mut watch = StallWatch::new(s.stall_back as usize);
-    let noisy_steps = match (origin, s.stall_noise_steps) {
-        (Origin::Stall, n) if n > 0 => u64::from(n),
-        _ => u64::MAX,
+    let window = match origin {
+        Origin::Seed(_) => 0,
+        Origin::Close => s.close_noise_steps,
+        Origin::Stall => s.stall_noise_steps,
+    };
+    let noisy_steps = match window {
+        0 => u64::MAX,
+        n => u64::from(n),
     };
     let mut steps = 0u64;
     loop {

@@ -118,6 +118,13 @@ pub struct GroupPg {
     /// the 8 cm the start draw keeps between them).
     #[serde(default = "default_close_spacing")]
     pub close_spacing: f32,
+    /// Steps at the beginning of each close group's episodes that carry the noise (0: all of
+    /// them), as `stall_noise_steps` does for the stall groups: the rest run the policy's own
+    /// action and stay out of the update, so a close group's outcome is that of the noise-free
+    /// policy after a perturbation of its approach (session 36 saw the close starts' success
+    /// with the noise on every step rise without the noise-free file's).
+    #[serde(default)]
+    pub close_noise_steps: u32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -145,6 +152,7 @@ impl GroupPg {
             stall_noise_steps: 0,
             close_groups: 0,
             close_spacing: default_close_spacing(),
+            close_noise_steps: 0,
             seed: 1,
         }
     }
@@ -197,6 +205,9 @@ impl GroupPg {
             return bad(
                 "close_spacing must be above 0.08 m (the bricks' least spacing) and at most 0.3 m",
             );
+        }
+        if self.close_noise_steps > 0 && self.close_groups == 0 {
+            return bad("close_noise_steps limits the noise of close_groups, which is 0");
         }
         if self.close_groups > 4096 {
             return bad("close_groups must be at most 4096");

@@ -53,6 +53,8 @@ pub struct PgStage {
     pub close_groups: u32,
     /// The close groups' largest spacing of the bricks' centres, metres.
     pub close_spacing: f32,
+    /// Steps at the beginning of each close group's episodes that carry noise (0: every step).
+    pub close_noise_steps: u32,
     /// Keep the actor as `policy-NNNN.dxpl` every this many iterations (0: only the latest).
     pub save_every: u32,
 }
@@ -95,6 +97,7 @@ impl PgStage {
             stall_noise_steps: g.stall_noise_steps,
             close_groups: g.close_groups,
             close_spacing: g.close_spacing,
+            close_noise_steps: g.close_noise_steps,
             save_every: 10,
         }
     }
@@ -121,6 +124,7 @@ impl PgStage {
             stall_noise_steps: self.stall_noise_steps,
             close_groups: self.close_groups,
             close_spacing: self.close_spacing,
+            close_noise_steps: self.close_noise_steps,
             seed,
         }
     }
