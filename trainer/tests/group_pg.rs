@@ -509,3 +509,61 @@ fn close_groups_run_from_close_starts_and_repeat_and_resume_exactly() {
         );
     }
 }
+
+#[test]
+fn close_noise_steps_keep_only_the_noisy_steps_of_the_close_groups() {
+    let scene = Scene::load().unwrap();
+    let window = 40u64;
+    let whole = GroupPg {
+        close_groups: 2,
+        stall_groups: 0,
+        stall_harvest: 0,
+        ..stall_run()
+    };
+    let s = GroupPg {
+        close_noise_steps: window as u32,
+        ..whole.clone()
+    };
+    let run_of = |s: &GroupPg, name: &str| {
+        let dir = tmp(name);
+        let mut reports: Vec<IterationReport> = Vec::new();
+        let file = run(s, &scene, Task::Stack, &dir, 2, 0, &mut |r| {
+            reports.push(r.clone())
+        })
+        .unwrap();
+        let _ = std::fs::remove_dir_all(dir);
+        (file, reports)
+    };
+    let (file, reports) = run_of(&s, "close-window");
+    let (all, all_reports) = run_of(&whole, "close-window-whole");
+    // The episodes run to the task's end either way: the same steps are counted.
+    assert_eq!(reports[0].env_steps, all_reports[0].env_steps);
+    // The fresh group keeps its four whole episodes when it carries a gradient, each close group
+    // only its episodes' first `window` steps.
+    let fresh = 4 * 150;
+    let close = 4 * window;
+    for r in &reports {
+        assert!(
+            [0, close, 2 * close, fresh, fresh + close, fresh + 2 * close].contains(&r.samples),
+            "{r:?}"
+        );
+    }
+    assert!(
+        reports.iter().any(|r| r.samples % fresh != 0),
+        "no close group had both outcomes with noise on its first {window} steps: {reports:?}"
+    );
+    assert_ne!(file, all, "the window changed nothing");
+    assert_eq!(
+        file,
+        run_of(&s, "close-window-again").0,
+        "the window is not deterministic"
+    );
+    // The window needs the groups it limits.
+    let lone = GroupPg {
+        close_groups: 0,
+        ..s.clone()
+    };
+    assert!(
+        matches!(lone.validate(), Err(GroupPgError::Settings(m)) if m.contains("close_groups, which is 0"))
+    );
+}
