@@ -313,3 +313,58 @@ fn open_bursts_hold_the_executed_fingers_opening_and_mix_with_close_bursts() {
     let back = DemoSet::from_bytes(&set.to_bytes(), std::path::Path::new("x.dxdm")).unwrap();
     assert_eq!(back.header.settings.open_bursts, 0.1);
 }
+
+#[test]
+fn close_spacing_starts_every_episode_with_the_bricks_close() {
+    // brick1_pos and brick2_pos in the observation (runtime::interface::OBSERVATION_FIELDS).
+    let spacing = |o: &[f32]| (o[24] - o[31]).hypot(o[25] - o[32]);
+    let record_of = |close_spacing: Option<f32>| {
+        let settings = RecordSettings {
+            episodes: 4,
+            close_spacing,
+            keep: Keep::All,
+            ..RecordSettings::new(Task::Stack)
+        };
+        record(
+            scene(),
+            &DemoSource::Scripted(Demonstrator::new(Task::Stack)),
+            &settings,
+            &|| {},
+        )
+        .unwrap()
+    };
+    let close = record_of(Some(0.09));
+    let firsts: Vec<f32> = std::iter::once(&close.rows[0])
+        .chain(close.rows.windows(2).filter(|w| w[0].last).map(|w| &w[1]))
+        .map(|r| spacing(&r.obs))
+        .collect();
+    assert_eq!(firsts.len(), 4, "{firsts:?}");
+    // The bricks settle a little after the draw; the draw keeps them 8.0-9.0 cm apart.
+    assert!(
+        firsts.iter().all(|s| (0.079..=0.091).contains(s)),
+        "{firsts:?}"
+    );
+    assert_eq!(
+        close,
+        record_of(Some(0.09)),
+        "the close starts repeat by seed"
+    );
+    let own = record_of(None);
+    assert_ne!(own.rows[0].obs, close.rows[0].obs);
+    assert!(
+        spacing(&own.rows[0].obs) > 0.091,
+        "this seed's own start is not close"
+    );
+    // The header records the spacing, a file without it writes no field.
+    assert_eq!(close.header.settings.close_spacing, Some(0.09));
+    let own_json = serde_json::to_value(own.header.settings).unwrap();
+    assert!(own_json.get("close_spacing").is_none(), "{own_json}");
+    for bad in [0.08f32, 0.05, 0.31, f32::NAN] {
+        let s = RecordSettings {
+            close_spacing: Some(bad),
+            ..RecordSettings::new(Task::Stack)
+        };
+        let e = s.validate().unwrap_err();
+        assert!(e.to_string().contains("close spacing"), "{bad}: {e}");
+    }
+}

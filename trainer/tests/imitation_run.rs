@@ -423,3 +423,56 @@ fn self_imitation_clones_the_executed_actions_of_a_policys_successful_noisy_epis
         );
     }
 }
+
+#[test]
+fn close_dart_episodes_are_a_recording_of_their_own_from_close_starts() {
+    let stack = ImitationConfig {
+        task: Task::Stack,
+        demo_episodes: 2,
+        dart_episodes: 2,
+        close_dart_episodes: 3,
+        close_spacing: 0.09,
+        rounds: 0,
+        select_episodes: 0,
+        ..tiny()
+    };
+    stack.validate().expect("valid");
+    let sets = stack.recordings(0);
+    let names: Vec<&str> = sets.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        ["demos-0.dxdm", "demos-0-dart.dxdm", "demos-0-close.dxdm"]
+    );
+    let (dart, close) = (&sets[1].1, &sets[2].1);
+    // The DART episodes' noise and keep, their own seeds, the close starts.
+    assert_eq!((close.episodes, close.close_spacing), (3, Some(0.09)));
+    assert_eq!(
+        (close.arm_noise, close.finger_noise, close.keep),
+        (dart.arm_noise, dart.finger_noise, dart.keep)
+    );
+    assert_ne!(close.seed, dart.seed);
+    assert_eq!(dart.close_spacing, None);
+    // Without them the recordings are those of before.
+    let plain = ImitationConfig {
+        close_dart_episodes: 0,
+        ..stack.clone()
+    };
+    assert_eq!(plain.recordings(0).len(), 2);
+    // A spacing outside (0.08, 0.3] is refused.
+    for close_spacing in [0.08f32, 0.4, f32::NAN] {
+        let bad = ImitationConfig {
+            close_spacing,
+            ..stack.clone()
+        };
+        assert!(bad.validate().is_err(), "{close_spacing}");
+    }
+    // The command line refuses a spacing without the episodes it places.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .args(["imitate", "--task", "stack", "--close-spacing", "0.09"])
+        .args(["--out", "/nonexistent/never-written"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--close-dart-episodes, which is 0"), "{err}");
+}

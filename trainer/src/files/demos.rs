@@ -207,7 +207,10 @@ pub fn record_with(
         let mut bursts = Rng::derive(seed, 0xB125);
         let mut burst_left = 0usize;
         let mut burst_value = 1.0f32;
-        let mut obs = env.reset(seed)?;
+        let mut obs = match settings.close_spacing {
+            Some(m) => env.reset_close(seed, f64::from(m))?,
+            None => env.reset(seed)?,
+        };
         demo.restart();
         if let (Some(policy), RecordMode::Takeover { max_step }) = (lead.as_mut(), settings.mode) {
             let mut pick = Rng::derive(seed, 0x7A4E);

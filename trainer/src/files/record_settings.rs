@@ -69,6 +69,12 @@ pub struct RecordSettings {
     /// Reward written into the rows (None: the task's own, [`Task::default_reward`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reward: Option<crate::env::Reward>,
+    /// The episodes start with the bricks' centres at most this many metres apart
+    /// ([`crate::env::JacoEnv::reset_close`]: the task's start draw, drawn again while they are
+    /// farther apart), where the Stack files fail (docs/experiments.md, session 36). None: the
+    /// task's own start draw.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub close_spacing: Option<f32>,
 }
 
 fn is_zero(v: &f32) -> bool {
@@ -101,6 +107,8 @@ struct RecordSettingsFile {
     mode: RecordMode,
     #[serde(default)]
     reward: Option<crate::env::Reward>,
+    #[serde(default)]
+    close_spacing: Option<f32>,
 }
 
 impl TryFrom<RecordSettingsFile> for RecordSettings {
@@ -134,6 +142,7 @@ impl TryFrom<RecordSettingsFile> for RecordSettings {
             keep,
             mode: f.mode,
             reward: f.reward,
+            close_spacing: f.close_spacing,
         })
     }
 }
@@ -152,6 +161,7 @@ impl RecordSettings {
             keep: Keep::Successes,
             mode: RecordMode::Demonstrator,
             reward: None,
+            close_spacing: None,
         }
     }
 
@@ -179,6 +189,15 @@ impl RecordSettings {
             if !(0.0..=0.5).contains(&p) {
                 return Err(DemoError::Settings(format!(
                     "{name} bursts {p} is outside [0, 0.5] (a probability per step)"
+                )));
+            }
+        }
+        if let Some(m) = self.close_spacing {
+            let min = crate::env::random_start::MIN_BRICK_SPACING as f32;
+            if !(m > min && m <= 0.3) {
+                return Err(DemoError::Settings(format!(
+                    "close spacing {m} m is outside (0.08, 0.3] (above the bricks' least \
+                     spacing, within the start square)"
                 )));
             }
         }

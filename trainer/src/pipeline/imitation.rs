@@ -58,6 +58,12 @@ pub struct ImitationConfig {
     /// Stack only: DART episodes started with brick 1 in the hand (StackInHand's starts), so the
     /// carrying and placing part of the task gets data of its own (0: none).
     pub in_hand_episodes: u32,
+    /// DART episodes of round 0 started with the bricks' centres at most `close_spacing` apart
+    /// ([`RecordSettings::close_spacing`]; 0: none), beside the DART episodes of the task's own
+    /// start draw: more data where the Stack files fail (docs/experiments.md, session 36).
+    pub close_dart_episodes: u32,
+    /// The close DART episodes' largest spacing of the bricks' centres, metres.
+    pub close_spacing: f32,
     /// Noise (standard deviation) on the executed arm actions of the DART episodes, action units.
     pub arm_noise: f32,
     /// Noise on the executed finger actions of the DART episodes.
@@ -114,6 +120,8 @@ impl Default for ImitationConfig {
             demo_episodes: 200,
             dart_episodes: 400,
             in_hand_episodes: 0,
+            close_dart_episodes: 0,
+            close_spacing: 0.095,
             rounds: 0,
             episodes_per_round: 50,
             dagger_failures_only: false,
@@ -189,6 +197,14 @@ impl ImitationConfig {
                     .into(),
             ));
         }
+        let min = crate::env::random_start::MIN_BRICK_SPACING as f32;
+        if !(self.close_spacing > min && self.close_spacing <= 0.3) {
+            return Err(ImitationError::Settings(format!(
+                "close_spacing {} m is outside (0.08, 0.3] (above the bricks' least spacing, \
+                 within the start square)",
+                self.close_spacing
+            )));
+        }
         if !(1..=100).contains(&self.dagger_repeat) {
             return Err(ImitationError::Settings(format!(
                 "dagger_repeat {} is outside 1..=100",
@@ -248,6 +264,7 @@ impl ImitationConfig {
             },
             mode: RecordMode::Dagger,
             reward: None,
+            close_spacing: None,
         };
         if round > 0 {
             return vec![(format!("demos-{round}.dxdm"), base)];
@@ -273,12 +290,21 @@ impl ImitationConfig {
             seed: seed + 2,
             ..dart
         };
+        let close = RecordSettings {
+            episodes: self.close_dart_episodes,
+            seed: seed + 3,
+            close_spacing: Some(self.close_spacing),
+            ..dart
+        };
         let mut v = vec![("demos-0.dxdm".to_owned(), clean)];
         if self.dart_episodes > 0 {
             v.push(("demos-0-dart.dxdm".to_owned(), dart));
         }
         if self.in_hand_episodes > 0 {
             v.push(("demos-0-in-hand.dxdm".to_owned(), in_hand));
+        }
+        if self.close_dart_episodes > 0 {
+            v.push(("demos-0-close.dxdm".to_owned(), close));
         }
         v
     }

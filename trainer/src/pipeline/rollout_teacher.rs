@@ -215,6 +215,7 @@ impl RolloutTeacher {
             keep: Keep::All,
             mode: RecordMode::Demonstrator,
             reward: None,
+            close_spacing: None,
         }
     }
 

@@ -75,6 +75,7 @@ impl SelfImitation {
             keep: Keep::Successes,
             mode: RecordMode::Demonstrator,
             reward: None,
+            close_spacing: None,
         }
     }
 

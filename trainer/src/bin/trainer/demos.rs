@@ -50,6 +50,10 @@ pub struct DemosArgs {
     /// opening for 3-8 steps (0: none, at most 0.5).
     #[arg(long, default_value_t = 0.0)]
     open_bursts: f32,
+    /// Start every episode with the bricks' centres at most this many metres apart (above 0.08,
+    /// at most 0.3; default: the task's own start draw).
+    #[arg(long)]
+    close_spacing: Option<f32>,
     /// Demonstrator takeover: this policy drives each episode for a random number of steps (up to
     /// --takeover-max-step), then the demonstrator takes over; only its part is recorded.
     #[arg(long, conflicts_with = "dagger")]
@@ -137,6 +141,7 @@ pub fn demos(a: &DemosArgs) -> anyhow::Result<()> {
         finger_noise: a.finger_noise,
         close_bursts: a.close_bursts,
         open_bursts: a.open_bursts,
+        close_spacing: a.close_spacing,
         keep: if a.failures_only {
             Keep::Failures
         } else if a.keep_failures {

@@ -29,6 +29,14 @@ pub struct ImitateArgs {
     /// Stack only: DART episodes started with brick 1 in the hand (data for carrying and placing).
     #[arg(long)]
     in_hand_episodes: Option<u32>,
+    /// DART episodes of round 0 started with the bricks' centres at most `--close-spacing` apart,
+    /// beside those of the task's own start draw (data where the Stack files fail).
+    #[arg(long)]
+    close_dart_episodes: Option<u32>,
+    /// The close DART episodes' largest spacing of the bricks' centres, metres (default 0.095;
+    /// needs `--close-dart-episodes`).
+    #[arg(long)]
+    close_spacing: Option<f32>,
     /// Noise (standard deviation) on the DART episodes' arm actions.
     #[arg(long)]
     arm_noise: Option<f32>,
@@ -154,6 +162,12 @@ impl ImitateArgs {
         if let Some(v) = self.in_hand_episodes {
             c.in_hand_episodes = v;
         }
+        if let Some(v) = self.close_dart_episodes {
+            c.close_dart_episodes = v;
+        }
+        if let Some(v) = self.close_spacing {
+            c.close_spacing = v;
+        }
         if let Some(v) = self.arm_noise {
             c.arm_noise = v;
         }
@@ -223,6 +237,9 @@ impl ImitateArgs {
             rt.arm_noise = self.rollout_arm_noise.unwrap_or(rt.arm_noise);
             rt.finger_noise = self.rollout_finger_noise.unwrap_or(rt.finger_noise);
             c.rollout_teacher = Some(rt);
+        }
+        if self.close_spacing.is_some() && c.close_dart_episodes == 0 {
+            anyhow::bail!("--close-spacing places the starts of --close-dart-episodes, which is 0");
         }
         c.validate()?;
         Ok(c)
