@@ -273,6 +273,23 @@ fn a_run_moves_the_actor_repeats_on_any_thread_count_and_resumes_exactly() {
     }
 }
 
+/// Runs `s` on Stack on two threads in a fresh folder `name` (removed after) and returns its file
+/// and its reports.
+fn stack_run_with_reports(
+    s: &GroupPg,
+    scene: &Scene,
+    name: &str,
+) -> (Vec<u8>, Vec<IterationReport>) {
+    let dir = tmp(name);
+    let mut reports: Vec<IterationReport> = Vec::new();
+    let file = run(s, scene, Task::Stack, &dir, 2, 0, &mut |r| {
+        reports.push(r.clone())
+    })
+    .unwrap();
+    let _ = std::fs::remove_dir_all(dir);
+    (file, reports)
+}
+
 #[test]
 fn stall_noise_steps_keep_only_the_noisy_steps_of_the_stall_groups() {
     let scene = Scene::load().unwrap();
@@ -281,16 +298,7 @@ fn stall_noise_steps_keep_only_the_noisy_steps_of_the_stall_groups() {
         stall_noise_steps: window as u32,
         ..stall_run()
     };
-    let run_of = |s: &GroupPg, name: &str| {
-        let dir = tmp(name);
-        let mut reports: Vec<IterationReport> = Vec::new();
-        let file = run(s, &scene, Task::Stack, &dir, 2, 0, &mut |r| {
-            reports.push(r.clone())
-        })
-        .unwrap();
-        let _ = std::fs::remove_dir_all(dir);
-        (file, reports)
-    };
+    let run_of = |s: &GroupPg, name: &str| stack_run_with_reports(s, &scene, name);
     let (file, reports) = run_of(&s, "stall-window");
     let (whole, whole_reports) = run_of(&stall_run(), "stall-window-whole");
     // The episodes run to the task's end either way: the same steps are counted.
@@ -524,16 +532,7 @@ fn close_noise_steps_keep_only_the_noisy_steps_of_the_close_groups() {
         close_noise_steps: window as u32,
         ..whole.clone()
     };
-    let run_of = |s: &GroupPg, name: &str| {
-        let dir = tmp(name);
-        let mut reports: Vec<IterationReport> = Vec::new();
-        let file = run(s, &scene, Task::Stack, &dir, 2, 0, &mut |r| {
-            reports.push(r.clone())
-        })
-        .unwrap();
-        let _ = std::fs::remove_dir_all(dir);
-        (file, reports)
-    };
+    let run_of = |s: &GroupPg, name: &str| stack_run_with_reports(s, &scene, name);
     let (file, reports) = run_of(&s, "close-window");
     let (all, all_reports) = run_of(&whole, "close-window-whole");
     // The episodes run to the task's end either way: the same steps are counted.
