@@ -458,6 +458,13 @@ fn close_dart_episodes_are_a_recording_of_their_own_from_close_starts() {
         ..stack.clone()
     };
     assert_eq!(plain.recordings(0).len(), 2);
+    // ... and their settings file is the one written before the setting existed.
+    let json = serde_json::to_value(ImitationConfig {
+        close_spacing: 0.095,
+        ..plain
+    })
+    .unwrap();
+    assert!(json.get("close_dart_episodes").is_none() && json.get("close_spacing").is_none());
     // A spacing outside (0.08, 0.3] is refused.
     for close_spacing in [0.08f32, 0.4, f32::NAN] {
         let bad = ImitationConfig {
