@@ -40,6 +40,17 @@ fn compare_runs_every_entry_on_the_same_starts_and_tests_every_pair() {
         .iter()
         .map(|e| e["successes"].as_u64().unwrap())
         .collect();
+    // Each entry lists the starts it failed, as many as its failures, in order.
+    for e in entries {
+        let failed: Vec<u64> = e["failed_starts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|i| i.as_u64().unwrap())
+            .collect();
+        assert_eq!(failed.len() as u64, 12 - e["successes"].as_u64().unwrap());
+        assert!(failed.windows(2).all(|w| w[0] < w[1]) && failed.iter().all(|&i| i < 12));
+    }
     // The file's own count is what `trainer eval` reports on the same starts.
     let eval = trainer(&[
         "eval",

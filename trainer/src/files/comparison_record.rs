@@ -35,6 +35,12 @@ pub struct ComparedEntry {
     pub episodes: u32,
     /// Wilson 95% interval of the success rate, in percent.
     pub interval_95: (f64, f64),
+    /// The starts it failed, ascending: index `i` is the start `episode_seed(start_seed, i)`, so
+    /// a failure can be set beside what the start holds (the bricks' spacing, say). Absent in a
+    /// pooled record (its starts come from several seeds) and in records written before the
+    /// field existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failed_starts: Option<Vec<u32>>,
 }
 
 impl ComparedEntry {
@@ -47,6 +53,7 @@ impl ComparedEntry {
             successes,
             episodes,
             interval_95: (100.0 * lo, 100.0 * hi),
+            failed_starts: None,
         }
     }
 }
@@ -168,7 +175,11 @@ impl ComparisonRecord {
             .iter()
             .map(|(name, sha, o)| {
                 let successes = o.iter().filter(|(_, s)| *s).count() as u32;
-                ComparedEntry::new(name.clone(), sha.clone(), successes, o.len() as u32)
+                let failed = (0..o.len() as u32).filter(|&i| !o[i as usize].1).collect();
+                ComparedEntry {
+                    failed_starts: Some(failed),
+                    ..ComparedEntry::new(name.clone(), sha.clone(), successes, o.len() as u32)
+                }
             })
             .collect();
         let mut pairs = Vec::new();
@@ -206,6 +217,19 @@ impl ComparisonRecord {
                     "entry {} has {} of {} starts in a record of {}",
                     e.name, e.successes, e.episodes, self.episodes
                 )));
+            }
+            if let Some(f) = &e.failed_starts {
+                let listed = f.len() as u64 == u64::from(e.episodes - e.successes)
+                    && f.windows(2).all(|w| w[0] < w[1])
+                    && f.last().is_none_or(|&i| i < e.episodes);
+                if !listed {
+                    return Err(bad(format!(
+                        "entry {}'s failed starts do not match its {} failures of {}",
+                        e.name,
+                        e.episodes - e.successes,
+                        e.episodes
+                    )));
+                }
             }
         }
         for p in &self.pairs {
@@ -463,8 +487,13 @@ mod tests {
             record(300, &cut(2500, 3000)),
         ];
         let pooled = pool(&named(chunks), "pool".into()).unwrap();
-        let direct = record(0, &whole);
+        let mut direct = record(0, &whole);
         assert_eq!(pooled.episodes, 3000);
+        // A pooled entry lists no failed starts: its indices would be of several seeds.
+        assert!(pooled.entries.iter().all(|e| e.failed_starts.is_none()));
+        for e in &mut direct.entries {
+            e.failed_starts = None;
+        }
         assert_eq!(pooled.entries, direct.entries);
         assert_eq!(pooled.pairs, direct.pairs);
         assert_eq!(pooled.pairs.len(), 3);
@@ -527,6 +556,20 @@ mod tests {
         // Counts that contradict themselves.
         let mut rs = ok();
         rs[1].pairs[0].paired.only_a += 1;
+        assert!(matches!(
+            pool(&named(rs), String::new()),
+            Err(ComparisonError::Inconsistent { .. })
+        ));
+        // A failed start missing from an entry's list, or listed twice.
+        let mut rs = ok();
+        rs[1].entries[0].failed_starts.as_mut().unwrap().pop();
+        assert!(matches!(
+            pool(&named(rs), String::new()),
+            Err(ComparisonError::Inconsistent { .. })
+        ));
+        let mut rs = ok();
+        let f = rs[1].entries[0].failed_starts.as_mut().unwrap();
+        f[1] = f[0];
         assert!(matches!(
             pool(&named(rs), String::new()),
             Err(ComparisonError::Inconsistent { .. })

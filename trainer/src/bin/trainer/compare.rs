@@ -46,8 +46,9 @@ pub struct CompareArgs {
     /// The starts, threads and bus.
     #[command(flatten)]
     at: EvalFlags,
-    /// Also write the comparison as JSON (every entry's successes and interval, every pair's
-    /// discordant starts and p-value, the command, the wall time).
+    /// Also write the comparison as JSON (every entry's successes, interval and failed starts
+    /// (indices from `--seed`), every pair's discordant counts and p-value, the command, the wall
+    /// time).
     #[arg(long)]
     json: Option<PathBuf>,
 }
