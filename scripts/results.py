@@ -57,7 +57,7 @@ SECTIONS = [
         "The paper's Table II: success of the best Grasp, StackInHand and Stack policies over 1000 "
         "random starts (seeds from 3,000,000, apart from training, selection and final evaluations). "
         "Ours are the files in `policies/` (clones by the imitation learner, the StackInHand clone then "
-        "fine-tuned by the RL learner, the Grasp and Stack files each distilled from the mean of several clones (eight and seven); how each was made: "
+        "fine-tuned by the RL learner, the Grasp file distilled from the mean of eight clones, the Stack file one clone that also learnt from demonstrations started with the bricks close together; how each was made: "
         "[policies/README.md](../policies/README.md)). `bash experiments/table2.sh` runs the three "
         "evaluations. The first row of each task is the latest evaluation on the current code; rows "
         "marked *history* are earlier evaluations, of the same file (same sha256) or of the file it "

@@ -66,6 +66,16 @@ pub enum EnvError {
         #[source]
         source: MjDataError,
     },
+    /// A close start's largest brick spacing ([`crate::random_start::check_close_spacing`]) is
+    /// outside its range.
+    #[error(
+        "close-start spacing {max_spacing} m is outside (0.08, 0.3]: it must be above the bricks' \
+         least spacing (8 cm) and at most 0.3 m (the start square's diagonal is 0.28 m)"
+    )]
+    CloseSpacing {
+        /// The spacing given, metres.
+        max_spacing: f64,
+    },
     /// A start-state scheme's setting is out of range, or it could not make a start.
     #[error("start-state scheme: {0}")]
     StartScheme(String),

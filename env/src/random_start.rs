@@ -26,6 +26,9 @@ pub const NOMINAL_ARM_QPOS: [f64; ARM_JOINTS] = [0.0, 3.6, 1.3, -1.6, 1.6, 0.0];
 pub const START_XY_RANGE: f64 = 0.1;
 /// Bricks start with their centres at least this far apart (their footprints' circumradius is 3.6 cm).
 pub const MIN_BRICK_SPACING: f64 = 0.08;
+/// The largest spacing a close start ([`JacoEnv::reset_close`]) may name, metres: the start
+/// square's diagonal is 0.28 m, so a larger one would no longer condition the draw.
+pub const MAX_CLOSE_SPACING: f64 = 0.3;
 /// Range of the finger joints' start positions (radians; fully open is 0.15, closed ~1.35).
 pub const START_FINGER_RANGE: (f64, f64) = (0.15, 0.9);
 /// Control steps the StackInHand start may spend picking brick 1 up (not part of the episode).
@@ -34,6 +37,19 @@ const MAX_START_ATTEMPTS: u32 = 50;
 /// Attempts of [`JacoEnv::reset_close`]: a draw whose bricks are too far apart is refused before
 /// any simulation, and about one draw in ten of the start square has them 8.0-9.5 cm apart.
 const MAX_CLOSE_START_ATTEMPTS: u32 = 2_000;
+
+/// Checks a close start's largest brick spacing, metres: above [`MIN_BRICK_SPACING`] (no start
+/// has the bricks closer) and at most [`MAX_CLOSE_SPACING`]. The one check of every setting that
+/// names one (the recordings', the imitation learner's, the policy-gradient stage's).
+/// Compared in f32, the precision the settings files carry, so that 0.3 written as an f32 passes.
+pub fn check_close_spacing(max_spacing: f64) -> Result<(), EnvError> {
+    let m = max_spacing as f32;
+    if m > MIN_BRICK_SPACING as f32 && m <= MAX_CLOSE_SPACING as f32 {
+        Ok(())
+    } else {
+        Err(EnvError::CloseSpacing { max_spacing })
+    }
+}
 
 impl JacoEnv {
     /// Starts a new episode from the start-state distribution of the task, drawn from `seed` alone.
@@ -53,13 +69,12 @@ impl JacoEnv {
     /// all at spacings below 9.5 cm, where a fingertip can come down on brick 2 while the hand
     /// descends to brick 1 (docs/experiments.md, session 36); a fine-tune can draw its starts
     /// there. The draw is the task's own, refused and drawn again until the bricks are close
-    /// enough, so a `max_spacing` above the start square's diagonal gives [`JacoEnv::reset`]'s
-    /// start. A `max_spacing` below [`MIN_BRICK_SPACING`] (or not a number) has no start.
+    /// enough, so a `max_spacing` above the start square's diagonal (0.28 m) gives
+    /// [`JacoEnv::reset`]'s start. A `max_spacing` outside [`check_close_spacing`]'s range (or not
+    /// a number) is refused with [`EnvError::CloseSpacing`].
     pub fn reset_close(&mut self, seed: u64, max_spacing: f64) -> Result<Observation, EnvError> {
+        check_close_spacing(max_spacing)?;
         let task = self.config().task;
-        if max_spacing.is_nan() || max_spacing < MIN_BRICK_SPACING {
-            return Err(EnvError::StartState { task, attempts: 0 });
-        }
         self.reset_drawn(seed, task, max_spacing, MAX_CLOSE_START_ATTEMPTS)
     }
 

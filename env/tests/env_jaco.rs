@@ -247,12 +247,15 @@ fn close_starts_keep_the_bricks_close_and_repeat_by_seed() {
     }
     // Above the start square's diagonal the condition is no condition: the task's own start.
     let plain = env.reset(3).unwrap();
-    let wide = env.reset_close(3, 1.0).unwrap();
+    let wide = env
+        .reset_close(3, dex_env::random_start::MAX_CLOSE_SPACING)
+        .unwrap();
     assert_eq!(bits(&[plain]), bits(&[wide]));
-    // No start has the bricks closer than they may be placed.
-    assert!(matches!(
-        env.reset_close(3, 0.05),
-        Err(EnvError::StartState { .. })
-    ));
-    assert!(env.reset_close(3, f64::NAN).is_err());
+    // No start has the bricks closer than they may be placed; beyond the square, no condition.
+    assert!(dex_env::random_start::check_close_spacing(f64::from(0.3f32)).is_ok());
+    for bad in [0.05, 0.08, 0.31, f64::NAN, f64::INFINITY] {
+        let e = env.reset_close(3, bad).unwrap_err();
+        assert!(matches!(e, EnvError::CloseSpacing { .. }), "{bad}: {e}");
+        assert!(e.to_string().contains("(0.08, 0.3]"), "{e}");
+    }
 }

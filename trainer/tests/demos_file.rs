@@ -365,6 +365,6 @@ fn close_spacing_starts_every_episode_with_the_bricks_close() {
             ..RecordSettings::new(Task::Stack)
         };
         let e = s.validate().unwrap_err();
-        assert!(e.to_string().contains("close spacing"), "{bad}: {e}");
+        assert!(e.to_string().contains("close-start spacing"), "{bad}: {e}");
     }
 }

@@ -193,13 +193,8 @@ impl RecordSettings {
             }
         }
         if let Some(m) = self.close_spacing {
-            let min = crate::env::random_start::MIN_BRICK_SPACING as f32;
-            if !(m > min && m <= 0.3) {
-                return Err(DemoError::Settings(format!(
-                    "close spacing {m} m is outside (0.08, 0.3] (above the bricks' least \
-                     spacing, within the start square)"
-                )));
-            }
+            crate::env::random_start::check_close_spacing(f64::from(m))
+                .map_err(|e| DemoError::Settings(e.to_string()))?;
         }
         Ok(())
     }

@@ -212,14 +212,8 @@ impl ImitationConfig {
                     .into(),
             ));
         }
-        let min = crate::env::random_start::MIN_BRICK_SPACING as f32;
-        if !(self.close_spacing > min && self.close_spacing <= 0.3) {
-            return Err(ImitationError::Settings(format!(
-                "close_spacing {} m is outside (0.08, 0.3] (above the bricks' least spacing, \
-                 within the start square)",
-                self.close_spacing
-            )));
-        }
+        crate::env::random_start::check_close_spacing(f64::from(self.close_spacing))
+            .map_err(|e| ImitationError::Settings(format!("close_spacing: {e}")))?;
         if !(1..=100).contains(&self.dagger_repeat) {
             return Err(ImitationError::Settings(format!(
                 "dagger_repeat {} is outside 1..=100",

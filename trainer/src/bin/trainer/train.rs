@@ -753,11 +753,17 @@ mod tests {
                 (FINETUNE_TRANSITIONS, FINETUNE_GUARD_EPISODES, 200)
             );
             assert_eq!(s.run.ddpg.gamma, 0.98);
-            // Grasp and Stack: the shipped file's ensemble and distillation, at the seed its
-            // members are written for; StackInHand: one clone, seed 0.
+            // Grasp: the shipped file's ensemble and distillation, at the seed its members are
+            // written for; Stack: the shipped file's close-start clone at its seed, 9;
+            // StackInHand: one clone, seed 0.
             let members = !s.clone.as_ref().unwrap().members.is_empty();
-            assert_eq!(members, task != "stack-in-hand", "{task}");
-            assert_eq!(s.seeds, vec![u64::from(members)], "{task}");
+            assert_eq!(members, task == "grasp", "{task}");
+            let seed = match task {
+                "grasp" => 1,
+                "stack" => 9,
+                _ => 0,
+            };
+            assert_eq!(s.seeds, vec![seed], "{task}");
         }
         // Budget, seeds and the guard's starts still apply; any learner flag starts from the
         // paper's DDPG instead.
@@ -882,7 +888,7 @@ mod tests {
             s.clone,
             Some(train_settings::CloneStage::for_task(TaskArg::Stack))
         );
-        assert_eq!(s.seeds, vec![1]);
+        assert_eq!(s.seeds, vec![9]);
         let s = settings(&["--task", "stack-in-hand", "--preset", "finetune"]);
         assert_eq!(s.clone, Some(train_settings::CloneStage::default()));
         let s = settings(&["--task", "stack", "--preset", "finetune", "--seeds", "2,3"]);

@@ -197,14 +197,9 @@ impl GroupPg {
         if self.stall_noise_steps > 0 && self.stall_groups == 0 {
             return bad("stall_noise_steps limits the noise of stall_groups, which is 0");
         }
-        let min = crate::env::random_start::MIN_BRICK_SPACING as f32;
-        if !(self.close_spacing.is_finite()
-            && self.close_spacing > min
-            && self.close_spacing <= 0.3)
+        if let Err(e) = crate::env::random_start::check_close_spacing(f64::from(self.close_spacing))
         {
-            return bad(
-                "close_spacing must be above 0.08 m (the bricks' least spacing) and at most 0.3 m",
-            );
+            return bad(&format!("close_spacing: {e}"));
         }
         if self.close_noise_steps > 0 && self.close_groups == 0 {
             return bad("close_noise_steps limits the noise of close_groups, which is 0");

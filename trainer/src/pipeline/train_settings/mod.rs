@@ -18,7 +18,7 @@ mod presets;
 mod start;
 mod task_args;
 
-pub use clone_stage::CloneStage;
+pub use clone_stage::{CloneStage, STACK_CLOSE_DART_EPISODES};
 pub use error::{SettingsError, UnknownSetting};
 pub use load::load;
 pub use pg_stage::PgStage;
