@@ -566,3 +566,157 @@ fn close_noise_steps_keep_only_the_noisy_steps_of_the_close_groups() {
         matches!(lone.validate(), Err(GroupPgError::Settings(m)) if m.contains("close_groups, which is 0"))
     );
 }
+
+#[test]
+fn failed_start_groups_run_their_window_repeat_and_resume_exactly() {
+    let scene = Scene::load().unwrap();
+    let window = 40u64;
+    let s = GroupPg {
+        failed_groups: 2,
+        failed_starts: (0..5)
+            .map(|i| dex_trainer::env::seeds::episode_seed(9_000_000, i))
+            .collect(),
+        failed_noise_steps: window as u32,
+        stall_groups: 0,
+        stall_harvest: 0,
+        ..stall_run()
+    };
+    let (one, two, resumed) = (tmp("failed-one"), tmp("failed-two"), tmp("failed-resumed"));
+    let (first, reports) = run_keeping_first_checkpoint(&s, &scene, Task::Stack, &one, 0, &resumed);
+    let fresh = 4 * 150;
+    let failed = 4 * window;
+    for (i, r) in reports.iter().enumerate() {
+        // One fresh group and two failed-start groups of four episodes each, run to the end.
+        assert_eq!((r.failed_groups, r.episodes), (2, 12), "{r:?}");
+        assert_eq!(r.env_steps, (i as u64 + 1) * 12 * 150, "{r:?}");
+        assert!(r.failed_successes <= 8, "{r:?}");
+        assert!(r.line(4).contains("from failed starts"), "{}", r.line(4));
+        // Only the failed groups' noisy first steps enter the update.
+        assert!(
+            [
+                0,
+                failed,
+                2 * failed,
+                fresh,
+                fresh + failed,
+                fresh + 2 * failed
+            ]
+            .contains(&r.samples),
+            "{r:?}"
+        );
+    }
+    let plain = run(
+        &GroupPg {
+            failed_groups: 0,
+            failed_starts: Vec::new(),
+            failed_noise_steps: 0,
+            ..s.clone()
+        },
+        &scene,
+        Task::Stack,
+        &two,
+        1,
+        0,
+        &mut |_| {},
+    )
+    .unwrap();
+    assert_ne!(first, plain, "the failed-start groups changed nothing");
+    let _ = std::fs::remove_dir_all(&two);
+    let on_two = run(&s, &scene, Task::Stack, &two, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(
+        first, on_two,
+        "the failed-start groups depend on the thread count"
+    );
+    let again = run(&s, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, again, "the resumed run differs");
+    // A resumed run refuses another list.
+    let other = GroupPg {
+        failed_starts: vec![1, 2, 3],
+        ..s.clone()
+    };
+    let refused = run(&other, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {});
+    assert!(
+        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
+        "{refused:?}"
+    );
+    for d in [one, two, resumed] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn the_command_line_reads_the_failed_starts_of_the_starting_file_only() {
+    use dex_trainer::files::comparison_record::ComparisonRecord;
+    use dex_trainer::files::result_record::sha256_hex;
+    use std::process::Command;
+    let dir = tmp("cli-failed");
+    std::fs::create_dir_all(&dir).unwrap();
+    let clone = grasp_clone();
+    let sha = sha256_hex(&std::fs::read(&clone).unwrap());
+    // A record of the clone on 6 starts, failing starts 1 and 4; and one of another file.
+    let outcomes: Vec<(f64, bool)> = (0..6).map(|i| (0.0, i != 1 && i != 4)).collect();
+    let record = |sha: &str| {
+        ComparisonRecord::of(
+            "trainer compare ...".into(),
+            "Grasp".into(),
+            9_000_000,
+            true,
+            &[("clone.dxpl".into(), Some(sha.to_owned()), outcomes.clone())],
+            1.0,
+        )
+    };
+    let write = |name: &str, r: &ComparisonRecord| {
+        let p = dir.join(name);
+        std::fs::write(&p, serde_json::to_string(r).unwrap()).unwrap();
+        p
+    };
+    let mine = write("mine.json", &record(&sha));
+    let theirs = write("theirs.json", &record(&"0".repeat(64)));
+    let pg = |record: &std::path::Path, groups: &str, out: &str| {
+        Command::new(env!("CARGO_BIN_EXE_trainer"))
+            .args(["pg", clone.to_str().unwrap(), "--out"])
+            .arg(dir.join(out))
+            .args(["--iterations", "1", "--groups", "1", "--replicates", "2"])
+            .args(["--failed-groups", groups, "--failed-from"])
+            .arg(record)
+            .args(["--failed-noise-steps", "20", "--threads", "1", "--quiet"])
+            .output()
+            .unwrap()
+    };
+    let ok = pg(&mine, "2", "ok");
+    let text = String::from_utf8_lossy(&ok.stdout);
+    assert!(
+        ok.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    assert!(text.contains("from failed starts"), "{text}");
+    let kept: serde_json::Value = {
+        // The run's settings, as its checkpoint's JSON holds them, list the two failed seeds.
+        let bytes = std::fs::read(dir.join("ok").join(CHECKPOINT)).unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        let start = text.find("\"failed_starts\":").unwrap();
+        let end = start + text[start..].find(']').unwrap() + 1;
+        serde_json::from_str(&format!("{{{}}}", &text[start..end])).unwrap()
+    };
+    let expected: Vec<u64> = [1u64, 4]
+        .iter()
+        .map(|&i| dex_trainer::env::seeds::episode_seed(9_000_000, i))
+        .collect();
+    assert_eq!(kept["failed_starts"], serde_json::json!(expected));
+    for (record, groups, why) in [
+        (&theirs, "1", "no entry is the file"),
+        (
+            &mine,
+            "3",
+            "failed_groups (3) must be at most the failed starts listed (2)",
+        ),
+        (&mine, "0", "--failed-groups, which is 0"),
+    ] {
+        let out = pg(record, groups, "bad");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(why), "{why}: {err}");
+        assert!(!dir.join("bad").exists());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

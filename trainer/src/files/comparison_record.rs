@@ -137,6 +137,14 @@ pub enum ComparisonError {
         /// The other's start seed.
         seed_b: u64,
     },
+    /// The record holds no entry of the file, or that entry lists no failed starts.
+    #[error("{record}: {what}")]
+    NoFailedStarts {
+        /// The record.
+        record: String,
+        /// What is missing.
+        what: String,
+    },
     /// A record's counts contradict themselves (successes above episodes, or discordant starts
     /// the entries' successes cannot give).
     #[error("{record}: {what}")]
@@ -149,6 +157,33 @@ pub enum ComparisonError {
 }
 
 impl ComparisonRecord {
+    /// The start seeds (`episode_seed(start_seed, i)`) that the entry of the file with SHA-256
+    /// `sha256` (hex) failed, in start order; `record` names the record in errors. Refused when no
+    /// entry is that file (a list of another file's failures would aim a fine-tune at the wrong
+    /// starts) or the entry lists no failed starts (a pooled or older record).
+    pub fn failed_seeds_of(&self, sha256: &str, record: &str) -> Result<Vec<u64>, ComparisonError> {
+        let missing = |what: String| ComparisonError::NoFailedStarts {
+            record: record.to_owned(),
+            what,
+        };
+        let entry = self
+            .entries
+            .iter()
+            .find(|e| e.sha256.as_deref() == Some(sha256))
+            .ok_or_else(|| missing(format!("no entry is the file of SHA-256 {sha256}")))?;
+        let failed = entry.failed_starts.as_ref().ok_or_else(|| {
+            missing(format!(
+                "entry {} lists no failed starts (a pooled record, or one written before \
+                 the list existed)",
+                entry.name
+            ))
+        })?;
+        Ok(failed
+            .iter()
+            .map(|&i| episode_seed(self.start_seed, u64::from(i)))
+            .collect())
+    }
+
     /// Reads a record written by `trainer compare --json`.
     pub fn read(path: &Path) -> Result<Self, ComparisonError> {
         let name = path.display().to_string();
@@ -461,6 +496,32 @@ mod tests {
 
     fn record(seed: u64, o: &[EntryOutcomes]) -> ComparisonRecord {
         ComparisonRecord::of("c".into(), "Stack".into(), seed, true, o, 1.5)
+    }
+
+    #[test]
+    fn the_failed_seeds_are_the_files_own_failures_as_start_seeds() {
+        let o = outcomes(200, 11);
+        let r = record(9_000_000, &o);
+        let file = format!("{:064x}", 1);
+        let seeds = r.failed_seeds_of(&file, "r.json").unwrap();
+        let expected: Vec<u64> = (0..200u64)
+            .filter(|&i| !o[1].2[i as usize].1)
+            .map(|i| episode_seed(9_000_000, i))
+            .collect();
+        assert!(!expected.is_empty());
+        assert_eq!(seeds, expected);
+        let other = r.failed_seeds_of(&"f".repeat(64), "r.json").unwrap_err();
+        assert!(
+            other.to_string().contains("no entry is the file"),
+            "{other}"
+        );
+        let mut pooled = r.clone();
+        pooled.entries[1].failed_starts = None;
+        let none = pooled.failed_seeds_of(&file, "r.json").unwrap_err();
+        assert!(
+            none.to_string().contains("lists no failed starts"),
+            "{none}"
+        );
     }
 
     fn named(records: Vec<ComparisonRecord>) -> Vec<(String, ComparisonRecord)> {

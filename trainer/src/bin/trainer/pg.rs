@@ -9,6 +9,8 @@ use anyhow::Context;
 use clap::Args;
 
 use dex_trainer::files::atomic_write::write_atomic;
+use dex_trainer::files::comparison_record::ComparisonRecord;
+use dex_trainer::files::result_record::sha256_hex;
 use dex_trainer::pipeline::group_pg::{GroupPg, PROGRESS, run_until};
 
 use crate::train::{bar, load_scene, stop_flag};
@@ -85,6 +87,20 @@ pub struct PgArgs {
     /// policy's own action and stay out of the update (0: every step; needs `--close-groups`).
     #[arg(long)]
     close_noise_steps: Option<u32>,
+    /// Groups per iteration, beside `--groups`, from starts the starting file fails without
+    /// noise, listed by `--failed-from`.
+    #[arg(long)]
+    failed_groups: Option<u32>,
+    /// A `trainer compare --json` record of the starting file on training starts (e.g.
+    /// `--seed 9000000`, the screening block): its failed starts are the failed-start groups'
+    /// pool (needs `--failed-groups`).
+    #[arg(long)]
+    failed_from: Option<PathBuf>,
+    /// Steps at the beginning of each failed-start group's episodes that carry noise; the rest
+    /// run the policy's own action and stay out of the update (0: every step; needs
+    /// `--failed-groups`).
+    #[arg(long)]
+    failed_noise_steps: Option<u32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -100,9 +116,21 @@ pub struct PgArgs {
 }
 
 impl PgArgs {
-    fn settings(&self) -> GroupPg {
+    fn settings(&self) -> anyhow::Result<GroupPg> {
         let d = GroupPg::new(self.policy.clone());
-        GroupPg {
+        let failed_starts = match (&self.failed_from, self.failed_groups) {
+            (Some(path), Some(n)) if n > 0 => {
+                let record = ComparisonRecord::read(path)?;
+                let file = std::fs::read(&self.policy)
+                    .with_context(|| format!("reading {}", self.policy.display()))?;
+                record.failed_seeds_of(&sha256_hex(&file), &path.display().to_string())?
+            }
+            (Some(_), _) => {
+                anyhow::bail!("--failed-from lists the starts of --failed-groups, which is 0")
+            }
+            (None, _) => Vec::new(),
+        };
+        Ok(GroupPg {
             iterations: self.iterations.unwrap_or(d.iterations),
             groups: self.groups.unwrap_or(d.groups),
             replicates: self.replicates.unwrap_or(d.replicates),
@@ -122,15 +150,18 @@ impl PgArgs {
             close_groups: self.close_groups.unwrap_or(d.close_groups),
             close_spacing: self.close_spacing.unwrap_or(d.close_spacing),
             close_noise_steps: self.close_noise_steps.unwrap_or(d.close_noise_steps),
+            failed_groups: self.failed_groups.unwrap_or(d.failed_groups),
+            failed_starts,
+            failed_noise_steps: self.failed_noise_steps.unwrap_or(d.failed_noise_steps),
             seed: self.seed.unwrap_or(d.seed),
             ..d
-        }
+        })
     }
 }
 
 /// Runs `trainer pg`.
 pub fn pg(args: &PgArgs) -> anyhow::Result<()> {
-    let settings = args.settings();
+    let settings = args.settings()?;
     settings.validate()?;
     if args.close_spacing.is_some() && settings.close_groups == 0 {
         anyhow::bail!("--close-spacing places the starts of --close-groups, which is 0");

@@ -40,6 +40,12 @@
 //! drawn with the bricks close together ([`crate::env::JacoEnv::reset_close`], their own seed
 //! block `+ 9`), where the Stack files' failures lie; like the stall groups they carry no fresh
 //! anchor, and they are not revisited or watched for stalls.
+//!
+//! With `failed_groups` (session 39), each iteration also runs that many groups from
+//! `failed_starts`, start seeds where the starting file fails without noise (listed before the
+//! run from a `trainer compare --json` record on training starts), each group with new noise
+//! every iteration and, with `failed_noise_steps`, noise on its first steps only. They carry no
+//! fresh anchor and are not watched for stalls.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -220,6 +226,13 @@ pub fn run_until(
             (0..settings.close_groups)
                 .map(|g| Start::Close(settings.close_seed(iteration, g), 0x6772_0000)),
         );
+        // Failed-start groups: starts the file fails, revisited with new noise every iteration.
+        let failed = settings.failed_picks(iteration);
+        starts.extend(
+            failed
+                .iter()
+                .map(|&seed| Start::Failed(seed, (0x6773 << 48) + (u64::from(iteration) << 16))),
+        );
         starts.extend(picks.iter().map(|&p| {
             let s = &stalls[p];
             let tag = (0x6771 << 48)
@@ -234,7 +247,12 @@ pub fn run_until(
             .iter()
             .filter(|e| e.success)
             .count() as u32;
-        let stall_successes = episodes[close_end..].iter().filter(|e| e.success).count() as u32;
+        let failed_end = close_end + failed.len() * reps;
+        let failed_successes = episodes[close_end..failed_end]
+            .iter()
+            .filter(|e| e.success)
+            .count() as u32;
+        let stall_successes = episodes[failed_end..].iter().filter(|e| e.success).count() as u32;
         let found: Vec<StallStart> = episodes[..seeds.len() * reps]
             .chunks_mut(reps)
             .filter_map(|group| group.iter_mut().find_map(|e| e.stall.take()))
@@ -258,6 +276,8 @@ pub fn run_until(
         report.stall_pool = stalls.len() as u32;
         report.close_groups = settings.close_groups;
         report.close_successes = close_successes;
+        report.failed_groups = failed.len() as u32;
+        report.failed_successes = failed_successes;
         policy = actor.export(&info(env_steps))?;
         let save = |name: String, bytes: &[u8]| {
             let p = dir.join(name);

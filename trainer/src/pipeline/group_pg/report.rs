@@ -36,6 +36,12 @@ pub struct IterationReport {
     /// Of their episodes, successful.
     #[serde(default)]
     pub close_successes: u32,
+    /// Groups run from starts the starting file fails (counted in `episodes`).
+    #[serde(default)]
+    pub failed_groups: u32,
+    /// Of their episodes, successful.
+    #[serde(default)]
+    pub failed_successes: u32,
 }
 
 impl IterationReport {
@@ -43,7 +49,7 @@ impl IterationReport {
     /// iteration, its successes with the noise, the groups with a gradient, the clipped share,
     /// the drift, the environment steps and, when it ran stall groups or holds stalls, their
     /// episodes' successes (each group `replicates` episodes) and the pool, and likewise the
-    /// close groups' successes.
+    /// close groups' and the failed-start groups' successes.
     pub fn line(&self, replicates: u32) -> String {
         let mut line = format!(
             "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, \
@@ -62,6 +68,14 @@ impl IterationReport {
                 self.close_successes,
                 self.close_groups * replicates,
                 self.close_groups
+            );
+        }
+        if self.failed_groups > 0 {
+            line += &format!(
+                "; from failed starts {}/{} ({} groups)",
+                self.failed_successes,
+                self.failed_groups * replicates,
+                self.failed_groups
             );
         }
         if self.stall_groups > 0 || self.stall_pool > 0 {

@@ -29,6 +29,9 @@ pub(super) enum Start<'a> {
     /// A start seed whose start is drawn with the bricks close
     /// ([`GroupPg::close_spacing`]), and the noise stream tag of its episodes.
     Close(u64, u64),
+    /// A start seed the starting file fails without noise ([`GroupPg::failed_starts`]), and
+    /// the noise stream tag of its episodes.
+    Failed(u64, u64),
     /// A stalled state and the noise stream tag of its episodes.
     Stall(&'a StallStart, u64),
 }
@@ -110,6 +113,11 @@ pub(super) fn rollouts(
                     let mut rng = Rng::derive(*seed, tag + k);
                     episode(s, env, mlp, o, Origin::Close, &mut rng)
                 }
+                Start::Failed(seed, tag) => {
+                    let o = env.reset(*seed).map_err(EvalError::from)?;
+                    let mut rng = Rng::derive(*seed, tag + k);
+                    episode(s, env, mlp, o, Origin::Failed, &mut rng)
+                }
                 Start::Stall(stall, tag) => {
                     let o = env.restore(&stall.snapshot).map_err(EvalError::from)?;
                     let mut rng = Rng::derive(stall.seed, tag + k);
@@ -129,6 +137,9 @@ pub(super) enum Origin {
     /// A close start: not watched; only its first [`GroupPg::close_noise_steps`] steps carry
     /// noise.
     Close,
+    /// A start the starting file fails: not watched; only its first
+    /// [`GroupPg::failed_noise_steps`] steps carry noise.
+    Failed,
     /// A stalled state: only its first [`GroupPg::stall_noise_steps`] steps carry noise.
     Stall,
 }
@@ -136,7 +147,8 @@ pub(super) enum Origin {
 /// One noisy episode from the environment's current state `o` to the task's last step. From a
 /// start seed it also watches for the stall; from a stalled state only its first
 /// [`GroupPg::stall_noise_steps`] steps carry noise (all of them when that is 0), from a close
-/// start only its first [`GroupPg::close_noise_steps`], and only those are kept for the update.
+/// start only its first [`GroupPg::close_noise_steps`], from a failed start its first
+/// [`GroupPg::failed_noise_steps`], and only those are kept for the update.
 pub(super) fn episode(
     s: &GroupPg,
     env: &mut JacoEnv,
@@ -149,13 +161,14 @@ pub(super) fn episode(
     // Only the start-seed episodes feed the pool.
     let seed = match origin {
         Origin::Seed(seed) => Some(seed),
-        Origin::Close | Origin::Stall => None,
+        Origin::Close | Origin::Failed | Origin::Stall => None,
     };
     let watching = seed.is_some() && s.stall_groups > 0;
     let mut watch = StallWatch::new(s.stall_back as usize);
     let window = match origin {
         Origin::Seed(_) => 0,
         Origin::Close => s.close_noise_steps,
+        Origin::Failed => s.failed_noise_steps,
         Origin::Stall => s.stall_noise_steps,
     };
     let noisy_steps = match window {

@@ -125,6 +125,23 @@ pub struct GroupPg {
     /// with the noise on every step rise without the noise-free file's).
     #[serde(default)]
     pub close_noise_steps: u32,
+    /// Groups per iteration, beside `groups`, from starts the starting file fails without noise
+    /// (`failed_starts`; 0: none; at most as many as the list holds). Session 38 found the
+    /// Stack clone's failures as rare as 11 in 1000 starts, and the teacher solving most of
+    /// them: these groups spend the rollouts where the file is known to fail, revisiting each
+    /// such start with new noise every iteration (session 39).
+    #[serde(default)]
+    pub failed_groups: u32,
+    /// The start seeds the starting file fails without noise (`trainer pg --failed-from`
+    /// reads them from a `trainer compare --json` record of that file on training starts,
+    /// [`crate::env::seeds::SCREEN_SEED`]'s block by default). Part of the settings, so a resumed run
+    /// refuses another list.
+    #[serde(default)]
+    pub failed_starts: Vec<u64>,
+    /// Steps at the beginning of each failed-start group's episodes that carry the noise (0: all
+    /// of them), as `close_noise_steps` does for the close groups.
+    #[serde(default)]
+    pub failed_noise_steps: u32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -153,6 +170,9 @@ impl GroupPg {
             close_groups: 0,
             close_spacing: default_close_spacing(),
             close_noise_steps: 0,
+            failed_groups: 0,
+            failed_starts: Vec::new(),
+            failed_noise_steps: 0,
             seed: 1,
         }
     }
@@ -206,6 +226,17 @@ impl GroupPg {
         }
         if self.close_groups > 4096 {
             return bad("close_groups must be at most 4096");
+        }
+        if self.failed_groups as usize > self.failed_starts.len() {
+            return bad(&format!(
+                "failed_groups ({}) must be at most the failed starts listed ({}); list them \
+                 with `--failed-from`",
+                self.failed_groups,
+                self.failed_starts.len()
+            ));
+        }
+        if self.failed_noise_steps > 0 && self.failed_groups == 0 {
+            return bad("failed_noise_steps limits the noise of failed_groups, which is 0");
         }
         if self.stall_back > MAX_STALL_BACK {
             return bad("stall_back must be at most 100 steps");
@@ -264,6 +295,16 @@ impl GroupPg {
         let mut left: Vec<usize> = (0..pool).collect();
         let mut rng = Rng::derive(self.seed, 0x6770_5000 + u64::from(iteration));
         (0..(self.stall_groups as usize).min(pool))
+            .map(|_| left.swap_remove(rng.below(left.len())))
+            .collect()
+    }
+
+    /// The failed starts the failed-start groups of iteration `i` run from: `failed_groups` of
+    /// [`GroupPg::failed_starts`], without repeats.
+    pub fn failed_picks(&self, iteration: u32) -> Vec<u64> {
+        let mut left = self.failed_starts.clone();
+        let mut rng = Rng::derive(self.seed, 0x6773_5000 + u64::from(iteration));
+        (0..(self.failed_groups as usize).min(left.len()))
             .map(|_| left.swap_remove(rng.below(left.len())))
             .collect()
     }

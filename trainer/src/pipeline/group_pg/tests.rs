@@ -21,6 +21,8 @@ fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
         stall_pool: 0,
         close_groups: 0,
         close_successes: 0,
+        failed_groups: 0,
+        failed_successes: 0,
     };
     let plain = r.line(8);
     assert!(
@@ -114,4 +116,44 @@ fn a_start_stays_hard_while_its_group_fails() {
     assert_eq!(many.len(), HARD_STARTS);
     assert_eq!(many.last(), Some(&1000));
     assert_eq!(many[0], 1, "the oldest start is dropped");
+}
+
+#[test]
+fn failed_start_groups_pick_from_their_list_without_repeats_and_need_one() {
+    let s = GroupPg {
+        failed_groups: 3,
+        failed_starts: vec![101, 102, 103, 104, 105],
+        failed_noise_steps: 40,
+        ..GroupPg::new(PathBuf::from("p.dxpl"))
+    };
+    s.validate().unwrap();
+    for iteration in 0..20 {
+        let mut picks = s.failed_picks(iteration);
+        assert_eq!(picks.len(), 3);
+        assert!(picks.iter().all(|p| (101..=105).contains(p)));
+        picks.sort_unstable();
+        picks.dedup();
+        assert_eq!(picks.len(), 3, "no start twice in one iteration");
+    }
+    assert_ne!(
+        (0..8).map(|i| s.failed_picks(i)).collect::<Vec<_>>(),
+        vec![s.failed_picks(0); 8],
+        "the picks change with the iteration"
+    );
+    let more = GroupPg {
+        failed_groups: 6,
+        ..s.clone()
+    };
+    let why = more.validate().unwrap_err().to_string();
+    assert!(
+        why.contains("failed_groups (6)") && why.contains("(5)"),
+        "{why}"
+    );
+    let stray = GroupPg {
+        failed_groups: 0,
+        failed_starts: Vec::new(),
+        ..s
+    };
+    let why = stray.validate().unwrap_err().to_string();
+    assert!(why.contains("failed_noise_steps"), "{why}");
 }

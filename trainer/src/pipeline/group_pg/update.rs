@@ -78,6 +78,8 @@ pub(super) fn update(
         stall_pool: 0,
         close_groups: 0,
         close_successes: 0,
+        failed_groups: 0,
+        failed_successes: 0,
     };
     if samples == 0 {
         return Ok(report);

@@ -125,6 +125,11 @@ impl PgStage {
             close_groups: self.close_groups,
             close_spacing: self.close_spacing,
             close_noise_steps: self.close_noise_steps,
+            // The failed-start groups need a list of the clone's failures, which the pipeline
+            // does not screen for (session 39 measured them with `trainer pg` alone).
+            failed_groups: 0,
+            failed_starts: Vec::new(),
+            failed_noise_steps: 0,
             seed,
         }
     }
