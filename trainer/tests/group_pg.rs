@@ -465,6 +465,26 @@ fn the_command_line_writes_the_policy_and_refuses_bad_flags() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Checks that `first`, the file of `s` run on one thread in a fresh folder, differs from the run
+/// `without` the groups named by `what` (in `two`), is the file of `s` on two threads (in `two`
+/// again) and of `s` resumed from the checkpoint kept in `resumed`.
+fn assert_changes_repeats_and_resumes(
+    s: &GroupPg,
+    without: &GroupPg,
+    scene: &Scene,
+    first: &[u8],
+    (two, resumed): (&std::path::Path, &std::path::Path),
+    what: &str,
+) {
+    let plain = run(without, scene, Task::Stack, two, 1, 0, &mut |_| {}).unwrap();
+    assert_ne!(first, plain, "the {what} changed nothing");
+    let _ = std::fs::remove_dir_all(two);
+    let on_two = run(s, scene, Task::Stack, two, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, on_two, "the {what} depend on the thread count");
+    let again = run(s, scene, Task::Stack, resumed, 1, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, again, "the resumed run differs");
+}
+
 #[test]
 fn close_groups_run_from_close_starts_and_repeat_and_resume_exactly() {
     let scene = Scene::load().unwrap();
@@ -483,25 +503,12 @@ fn close_groups_run_from_close_starts_and_repeat_and_resume_exactly() {
         assert!(r.close_successes <= 8, "{r:?}");
         assert!(r.line(4).contains("from close starts"), "{}", r.line(4));
     }
-    let plain = run(
-        &GroupPg {
-            close_groups: 0,
-            ..s.clone()
-        },
-        &scene,
-        Task::Stack,
-        &two,
-        1,
-        0,
-        &mut |_| {},
-    )
-    .unwrap();
-    assert_ne!(first, plain, "the close groups changed nothing");
-    let _ = std::fs::remove_dir_all(&two);
-    let on_two = run(&s, &scene, Task::Stack, &two, 2, 0, &mut |_| {}).unwrap();
-    assert_eq!(first, on_two, "the close groups depend on the thread count");
-    let again = run(&s, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {}).unwrap();
-    assert_eq!(first, again, "the resumed run differs");
+    let without = GroupPg {
+        close_groups: 0,
+        ..s.clone()
+    };
+    let dirs = (two.as_path(), resumed.as_path());
+    assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "close groups");
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }
@@ -605,30 +612,14 @@ fn failed_start_groups_run_their_window_repeat_and_resume_exactly() {
             "{r:?}"
         );
     }
-    let plain = run(
-        &GroupPg {
-            failed_groups: 0,
-            failed_starts: Vec::new(),
-            failed_noise_steps: 0,
-            ..s.clone()
-        },
-        &scene,
-        Task::Stack,
-        &two,
-        1,
-        0,
-        &mut |_| {},
-    )
-    .unwrap();
-    assert_ne!(first, plain, "the failed-start groups changed nothing");
-    let _ = std::fs::remove_dir_all(&two);
-    let on_two = run(&s, &scene, Task::Stack, &two, 2, 0, &mut |_| {}).unwrap();
-    assert_eq!(
-        first, on_two,
-        "the failed-start groups depend on the thread count"
-    );
-    let again = run(&s, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {}).unwrap();
-    assert_eq!(first, again, "the resumed run differs");
+    let without = GroupPg {
+        failed_groups: 0,
+        failed_starts: Vec::new(),
+        failed_noise_steps: 0,
+        ..s.clone()
+    };
+    let dirs = (two.as_path(), resumed.as_path());
+    assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "failed-start groups");
     // A resumed run refuses another list.
     let other = GroupPg {
         failed_starts: vec![1, 2, 3],
