@@ -100,30 +100,29 @@ pub(super) fn rollouts(
         },
         |(mlp, env), i| {
             let k = (i % reps) as u64;
-            match &starts[i / reps] {
-                Start::Seed(seed, tag) => {
-                    let o = env.reset(*seed).map_err(EvalError::from)?;
-                    let mut rng = Rng::derive(*seed, tag + k);
-                    episode(s, env, mlp, o, Origin::Seed(*seed), &mut rng)
-                }
-                Start::Close(seed, tag) => {
-                    let o = env
-                        .reset_close(*seed, f64::from(s.close_spacing))
-                        .map_err(EvalError::from)?;
-                    let mut rng = Rng::derive(*seed, tag + k);
-                    episode(s, env, mlp, o, Origin::Close, &mut rng)
-                }
-                Start::Failed(seed, tag) => {
-                    let o = env.reset(*seed).map_err(EvalError::from)?;
-                    let mut rng = Rng::derive(*seed, tag + k);
-                    episode(s, env, mlp, o, Origin::Failed, &mut rng)
-                }
-                Start::Stall(stall, tag) => {
-                    let o = env.restore(&stall.snapshot).map_err(EvalError::from)?;
-                    let mut rng = Rng::derive(stall.seed, tag + k);
-                    episode(s, env, mlp, o, Origin::Stall, &mut rng)
-                }
-            }
+            // The state the episode starts from, the seed that names its noise streams, and
+            // what it does besides its noisy steps.
+            let (o, noise_seed, origin) = match &starts[i / reps] {
+                Start::Seed(seed, tag) => (env.reset(*seed), (*seed, tag), Origin::Seed(*seed)),
+                Start::Close(seed, tag) => (
+                    env.reset_close(*seed, f64::from(s.close_spacing)),
+                    (*seed, tag),
+                    Origin::Window(s.close_noise_steps),
+                ),
+                Start::Failed(seed, tag) => (
+                    env.reset(*seed),
+                    (*seed, tag),
+                    Origin::Window(s.failed_noise_steps),
+                ),
+                Start::Stall(stall, tag) => (
+                    env.restore(&stall.snapshot),
+                    (stall.seed, tag),
+                    Origin::Window(s.stall_noise_steps),
+                ),
+            };
+            let o = o.map_err(EvalError::from)?;
+            let mut rng = Rng::derive(noise_seed.0, noise_seed.1 + k);
+            episode(s, env, mlp, o, origin, &mut rng)
         },
         &|| {},
     )
@@ -132,16 +131,13 @@ pub(super) fn rollouts(
 /// Where an episode began, for what it does besides its noisy steps.
 #[derive(Clone, Copy)]
 pub(super) enum Origin {
-    /// A start seed: the episode watches for the stall that feeds the pool.
+    /// A start seed: every step carries noise, and the episode watches for the stall that feeds
+    /// the pool.
     Seed(u64),
-    /// A close start: not watched; only its first [`GroupPg::close_noise_steps`] steps carry
-    /// noise.
-    Close,
-    /// A start the starting file fails: not watched; only its first
-    /// [`GroupPg::failed_noise_steps`] steps carry noise.
-    Failed,
-    /// A stalled state: only its first [`GroupPg::stall_noise_steps`] steps carry noise.
-    Stall,
+    /// A close start, a failed start or a stalled state: not watched; only the first steps
+    /// carry noise (the group kind's `*_noise_steps`: [`GroupPg::close_noise_steps`],
+    /// [`GroupPg::failed_noise_steps`], [`GroupPg::stall_noise_steps`]; 0: every step).
+    Window(u32),
 }
 
 /// One noisy episode from the environment's current state `o` to the task's last step. From a
@@ -159,18 +155,12 @@ pub(super) fn episode(
 ) -> Result<Episode, GroupPgError> {
     let (mut obs, mut noise) = (Vec::with_capacity(160), Vec::with_capacity(160));
     // Only the start-seed episodes feed the pool.
-    let seed = match origin {
-        Origin::Seed(seed) => Some(seed),
-        Origin::Close | Origin::Failed | Origin::Stall => None,
+    let (seed, window) = match origin {
+        Origin::Seed(seed) => (Some(seed), 0),
+        Origin::Window(n) => (None, n),
     };
     let watching = seed.is_some() && s.stall_groups > 0;
     let mut watch = StallWatch::new(s.stall_back as usize);
-    let window = match origin {
-        Origin::Seed(_) => 0,
-        Origin::Close => s.close_noise_steps,
-        Origin::Failed => s.failed_noise_steps,
-        Origin::Stall => s.stall_noise_steps,
-    };
     let noisy_steps = match window {
         0 => u64::MAX,
         n => u64::from(n),

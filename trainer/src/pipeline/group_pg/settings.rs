@@ -292,21 +292,16 @@ impl GroupPg {
     /// The pool entries the stall groups of iteration `i` start from: `stall_groups` of `pool`
     /// (all of them when it holds fewer), without repeats.
     pub fn stall_picks(&self, iteration: u32, pool: usize) -> Vec<usize> {
-        let mut left: Vec<usize> = (0..pool).collect();
         let mut rng = Rng::derive(self.seed, 0x6770_5000 + u64::from(iteration));
-        (0..(self.stall_groups as usize).min(pool))
-            .map(|_| left.swap_remove(rng.below(left.len())))
-            .collect()
+        let all: Vec<usize> = (0..pool).collect();
+        draw_without_repeats(&all, self.stall_groups as usize, &mut rng)
     }
 
     /// The failed starts the failed-start groups of iteration `i` run from: `failed_groups` of
     /// [`GroupPg::failed_starts`], without repeats.
     pub fn failed_picks(&self, iteration: u32) -> Vec<u64> {
-        let mut left = self.failed_starts.clone();
         let mut rng = Rng::derive(self.seed, 0x6773_5000 + u64::from(iteration));
-        (0..(self.failed_groups as usize).min(left.len()))
-            .map(|_| left.swap_remove(rng.below(left.len())))
-            .collect()
+        draw_without_repeats(&self.failed_starts, self.failed_groups as usize, &mut rng)
     }
 
     /// How many of an iteration's groups revisit a start, with `hard` starts to choose from.
@@ -318,17 +313,22 @@ impl GroupPg {
     /// `hard` holds) drawn from `hard` without repeats, the rest fresh.
     pub fn starts(&self, iteration: u32, hard: &[u64]) -> Vec<u64> {
         let k = self.revisits(hard.len());
-        let mut pool = hard.to_vec();
         let mut rng = Rng::derive(self.seed, 0x6770_4000 + u64::from(iteration));
-        let mut out = Vec::with_capacity(self.groups as usize);
-        for _ in 0..k {
-            out.push(pool.swap_remove(rng.below(pool.len())));
-        }
+        let mut out = draw_without_repeats(hard, k, &mut rng);
         for g in k as u32..self.groups {
             out.push(self.start_seed(iteration, g));
         }
         out
     }
+}
+
+/// `k` entries of `pool` (all of them when it holds fewer), drawn without repeats: the one draw
+/// behind the revisits, the stall picks and the failed-start picks.
+fn draw_without_repeats<T: Copy>(pool: &[T], k: usize, rng: &mut Rng) -> Vec<T> {
+    let mut left = pool.to_vec();
+    (0..k.min(pool.len()))
+        .map(|_| left.swap_remove(rng.below(left.len())))
+        .collect()
 }
 
 /// [`GroupPg::close_spacing`]'s default: 9.5 cm, above the largest spacing of the shipped Stack
