@@ -20,6 +20,7 @@
 //!
 //! Not here: rendering, the learner, and the real robot's CAN side.
 
+pub mod contacts;
 pub mod demo;
 pub mod environment;
 pub mod error;

@@ -197,7 +197,7 @@ impl JacoEnv {
 }
 
 /// Writes a free joint's pose: position and a rotation of `yaw` about the vertical.
-fn set_free(data: &mut MjData<Arc<MjModel>>, adr: usize, pos: [f64; 3], yaw: f64) {
+pub(crate) fn set_free(data: &mut MjData<Arc<MjModel>>, adr: usize, pos: [f64; 3], yaw: f64) {
     let (s, c) = (0.5 * yaw).sin_cos();
     let pose = [pos[0], pos[1], pos[2], c, 0.0, 0.0, s];
     let qpos = data.qpos_mut();

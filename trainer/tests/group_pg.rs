@@ -449,6 +449,15 @@ fn the_command_line_writes_the_policy_and_refuses_bad_flags() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("clip must be in (0, 1)"));
     assert!(!dir.join("bad").exists());
+    let costly = Command::new(env!("CARGO_BIN_EXE_trainer"))
+        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
+        .arg(dir.join("costly"))
+        .args(["--contact-cost", "2"])
+        .output()
+        .unwrap();
+    assert!(!costly.status.success());
+    assert!(String::from_utf8_lossy(&costly.stderr).contains("contact_cost must be in [0, 1]"));
+    assert!(!dir.join("costly").exists());
     let lone = Command::new(env!("CARGO_BIN_EXE_trainer"))
         .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
         .arg(dir.join("lone"))
@@ -623,6 +632,61 @@ fn failed_start_groups_run_their_window_repeat_and_resume_exactly() {
     // A resumed run refuses another list.
     let other = GroupPg {
         failed_starts: vec![1, 2, 3],
+        ..s.clone()
+    };
+    let refused = run(&other, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {});
+    assert!(
+        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
+        "{refused:?}"
+    );
+    for d in [one, two, resumed] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn a_contact_cost_changes_the_run_counts_the_contacts_repeats_and_resumes_exactly() {
+    let scene = Scene::load().unwrap();
+    // Starts of the screening block on which the shipped Stack file touches brick 2 with a
+    // fingertip before its grasp (for 48, 18 and 20 steps) and still succeeds (session 40's
+    // `brick2_contact_spike`), run as pinned groups with the noise on their approach.
+    let s = GroupPg {
+        policy: std::path::PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../policies/stack.dxpl"
+        )),
+        failed_groups: 2,
+        failed_starts: [1125u64, 1504, 285]
+            .iter()
+            .map(|&i| dex_trainer::env::seeds::episode_seed(9_000_000, i))
+            .collect(),
+        failed_noise_steps: 60,
+        contact_cost: 1.0,
+        stall_groups: 0,
+        stall_harvest: 0,
+        ..stall_run()
+    };
+    let (one, two, resumed) = (
+        tmp("contact-one"),
+        tmp("contact-two"),
+        tmp("contact-resumed"),
+    );
+    let (first, reports) = run_keeping_first_checkpoint(&s, &scene, Task::Stack, &one, 0, &resumed);
+    let touched: u32 = reports.iter().map(|r| r.touched).sum();
+    assert!(touched > 0, "no episode touched brick 2: {reports:?}");
+    for r in &reports {
+        assert!(r.touched <= r.episodes && r.close_touched == 0, "{r:?}");
+        assert!(r.line(4).contains("touched brick 2"), "{}", r.line(4));
+    }
+    let without = GroupPg {
+        contact_cost: 0.0,
+        ..s.clone()
+    };
+    let dirs = (two.as_path(), resumed.as_path());
+    assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "contact cost");
+    // A resumed run refuses another cost.
+    let other = GroupPg {
+        contact_cost: 0.5,
         ..s.clone()
     };
     let refused = run(&other, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {});

@@ -101,6 +101,10 @@ pub struct PgArgs {
     /// `--failed-groups`).
     #[arg(long)]
     failed_noise_steps: Option<u32>,
+    /// What an episode in which the robot touches brick 2 before it grasps brick 1 loses beside
+    /// its success, in [0, 1] (default 0).
+    #[arg(long)]
+    contact_cost: Option<f32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -153,6 +157,7 @@ impl PgArgs {
             failed_groups: self.failed_groups.unwrap_or(d.failed_groups),
             failed_starts,
             failed_noise_steps: self.failed_noise_steps.unwrap_or(d.failed_noise_steps),
+            contact_cost: self.contact_cost.unwrap_or(d.contact_cost),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         })

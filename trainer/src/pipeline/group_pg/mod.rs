@@ -46,6 +46,10 @@
 //! run from a `trainer compare --json` record on training starts), each group with new noise
 //! every iteration and, with `failed_noise_steps`, noise on its first steps only. They carry no
 //! fresh anchor and are not watched for stalls.
+//!
+//! With `contact_cost` (session 40), an episode in which the robot touched brick 2 before it first
+//! grasped brick 1 is rewarded its success less that cost, so a group has a gradient also when its
+//! episodes all succeed but only some kept clear of brick 2.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -247,6 +251,10 @@ pub fn run_until(
             .iter()
             .filter(|e| e.success)
             .count() as u32;
+        let close_touched = episodes[seeds.len() * reps..close_end]
+            .iter()
+            .filter(|e| e.touched)
+            .count() as u32;
         let failed_end = close_end + failed.len() * reps;
         let failed_successes = episodes[close_end..failed_end]
             .iter()
@@ -278,6 +286,7 @@ pub fn run_until(
         report.close_successes = close_successes;
         report.failed_groups = failed.len() as u32;
         report.failed_successes = failed_successes;
+        report.close_touched = close_touched;
         policy = actor.export(&info(env_steps))?;
         let save = |name: String, bytes: &[u8]| {
             let p = dir.join(name);

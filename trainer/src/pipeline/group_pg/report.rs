@@ -11,7 +11,8 @@ pub struct IterationReport {
     pub episodes: u32,
     /// Of them successful (with the noise).
     pub successes: u32,
-    /// Groups with both outcomes (the only ones with a gradient).
+    /// Groups whose episodes' rewards differ (the only ones with a gradient): both outcomes or,
+    /// with a contact cost, touches of brick 2 in some of the episodes only.
     pub mixed_groups: u32,
     /// Steps the update used.
     pub samples: u64,
@@ -42,6 +43,12 @@ pub struct IterationReport {
     /// Of their episodes, successful.
     #[serde(default)]
     pub failed_successes: u32,
+    /// Episodes in which the robot touched brick 2 before it first grasped brick 1.
+    #[serde(default)]
+    pub touched: u32,
+    /// Of them, episodes from close starts.
+    #[serde(default)]
+    pub close_touched: u32,
 }
 
 impl IterationReport {
@@ -49,10 +56,11 @@ impl IterationReport {
     /// iteration, its successes with the noise, the groups with a gradient, the clipped share,
     /// the drift, the environment steps and, when it ran stall groups or holds stalls, their
     /// episodes' successes (each group `replicates` episodes) and the pool, and likewise the
-    /// close groups' and the failed-start groups' successes.
+    /// close groups' and the failed-start groups' successes, and the episodes that touched brick
+    /// 2 before the grasp.
     pub fn line(&self, replicates: u32) -> String {
         let mut line = format!(
-            "iteration {} success {}/{} with noise, {} groups with both outcomes, clipped {:.3}, \
+            "iteration {} success {}/{} with noise, {} groups with a gradient, clipped {:.3}, \
              drift {:.3}, {} env steps",
             self.iteration + 1,
             self.successes,
@@ -76,6 +84,12 @@ impl IterationReport {
                 self.failed_successes,
                 self.failed_groups * replicates,
                 self.failed_groups
+            );
+        }
+        if self.touched > 0 {
+            line += &format!(
+                "; touched brick 2 before the grasp in {} episodes ({} from close starts)",
+                self.touched, self.close_touched
             );
         }
         if self.stall_groups > 0 || self.stall_pool > 0 {

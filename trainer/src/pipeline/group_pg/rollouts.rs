@@ -19,6 +19,8 @@ pub(super) struct Episode {
     pub(super) noise: Vec<[f32; ACT_DIM]>,
     pub(super) steps: u64,
     pub(super) success: bool,
+    /// Whether the robot touched brick 2 before it first grasped brick 1.
+    pub(super) touched: bool,
     pub(super) stall: Option<StallStart>,
 }
 
@@ -166,6 +168,7 @@ pub(super) fn episode(
         n => u64::from(n),
     };
     let mut steps = 0u64;
+    let (mut grasped, mut touched) = (false, false);
     loop {
         let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
         if steps < noisy_steps {
@@ -184,6 +187,8 @@ pub(super) fn episode(
         if watching {
             watch.after_step(env, &out);
         }
+        grasped |= out.predicates.grasp;
+        touched = touched || (!grasped && env.robot_touches_brick2());
         o = out.observation;
         if out.done {
             let stall = seed
@@ -195,6 +200,7 @@ pub(super) fn episode(
                 noise,
                 steps,
                 success: out.success,
+                touched,
                 stall,
             });
         }

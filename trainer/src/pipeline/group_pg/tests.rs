@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use super::rollouts::{Episode, HARD_STARTS};
 use super::*;
+use crate::learn::adam::{AdamConfig, AdamLocal, AdamShared};
 
 #[test]
 fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
@@ -23,6 +24,8 @@ fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
         close_successes: 0,
         failed_groups: 0,
         failed_successes: 0,
+        touched: 0,
+        close_touched: 0,
     };
     let plain = r.line(8);
     assert!(
@@ -30,6 +33,15 @@ fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
         "{plain}"
     );
     assert!(!plain.contains("from stalls"), "{plain}");
+    assert!(!plain.contains("touched"), "{plain}");
+    (r.touched, r.close_touched) = (5, 4);
+    assert!(
+        r.line(8)
+            .ends_with("; touched brick 2 before the grasp in 5 episodes (4 from close starts)"),
+        "{}",
+        r.line(8)
+    );
+    (r.touched, r.close_touched) = (0, 0);
     (r.stall_groups, r.stall_successes, r.stall_pool) = (16, 50, 16);
     assert!(
         r.line(8)
@@ -79,7 +91,111 @@ fn ep(success: bool) -> Episode {
         noise: Vec::new(),
         steps: 0,
         success,
+        touched: false,
         stall: None,
+    }
+}
+
+/// An episode of `rows` kept steps (zero observations, small noise) with its outcome and contact.
+fn ep_rows(success: bool, touched: bool, rows: usize) -> Episode {
+    let noise: [f32; dex_runtime::interface::ACT_DIM] = std::array::from_fn(|j| 0.01 * j as f32);
+    Episode {
+        obs: vec![[0.0; dex_runtime::interface::OBS_DIM]; rows],
+        noise: vec![noise; rows],
+        steps: rows as u64,
+        success,
+        touched,
+        stall: None,
+    }
+}
+
+/// One update of the Grasp fixture's actor on `episodes` (groups of 4, none of them start-seed
+/// groups); its report and whether the actor moved.
+fn update_once(s: &GroupPg, episodes: &[Episode]) -> (IterationReport, bool) {
+    let file = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/grasp_clone_session14.dxpl"
+    ))
+    .unwrap();
+    let mut actor =
+        crate::pipeline::file_actor::FileActor::from_file(&file, crate::env::Task::Grasp).unwrap();
+    let before = actor.params.clone();
+    let n = actor.params.len();
+    let (mut local, mut shared) = (AdamLocal::new(n), AdamShared::new(n));
+    let mut scratch = actor.net.scratch(s.minibatch as usize);
+    let adam = AdamConfig {
+        lr: s.lr,
+        ..AdamConfig::default()
+    };
+    let report = super::update::update(
+        s,
+        &mut actor,
+        episodes,
+        0,
+        0,
+        &adam,
+        &mut local,
+        &mut shared,
+        &mut scratch,
+    )
+    .unwrap();
+    (report, actor.params != before)
+}
+
+#[test]
+fn a_contact_cost_gives_a_gradient_to_a_group_that_succeeds_every_time() {
+    let s = GroupPg {
+        replicates: 4,
+        minibatch: 64,
+        epochs: 1,
+        lr: 1e-3,
+        ..GroupPg::new(PathBuf::from("p.dxpl"))
+    };
+    // Every episode succeeds; two of the four touched brick 2 before the grasp.
+    let group = || {
+        vec![
+            ep_rows(true, true, 5),
+            ep_rows(true, false, 5),
+            ep_rows(true, true, 5),
+            ep_rows(true, false, 5),
+        ]
+    };
+    let (plain, moved) = update_once(&s, &group());
+    assert_eq!(
+        (plain.mixed_groups, plain.samples, plain.touched),
+        (0, 0, 2)
+    );
+    assert!(
+        !moved,
+        "a group of equal outcomes moved the actor without a cost"
+    );
+    let charged = GroupPg {
+        contact_cost: 0.5,
+        ..s.clone()
+    };
+    let (report, moved) = update_once(&charged, &group());
+    assert_eq!((report.mixed_groups, report.samples), (1, 20), "{report:?}");
+    assert!(moved, "the contact cost's gradient did not move the actor");
+    // A group in which every episode touched gains nothing from the cost: the baseline absorbs it.
+    let all = vec![
+        ep_rows(true, true, 5),
+        ep_rows(true, true, 5),
+        ep_rows(true, true, 5),
+        ep_rows(true, true, 5),
+    ];
+    let (report, moved) = update_once(&charged, &all);
+    assert_eq!((report.mixed_groups, report.samples), (0, 0), "{report:?}");
+    assert!(!moved);
+    // Out of range: a contact may cost at most a failure.
+    for bad in [-0.1f32, 1.5, f32::NAN, f32::INFINITY] {
+        let s = GroupPg {
+            contact_cost: bad,
+            ..s.clone()
+        };
+        assert!(
+            matches!(s.validate(), Err(GroupPgError::Settings(m)) if m.contains("contact_cost")),
+            "contact_cost {bad} accepted"
+        );
     }
 }
 

@@ -11,7 +11,8 @@ use super::rollouts::Episode;
 use super::{GroupPg, GroupPgError, IterationReport};
 
 /// The group advantages, then `epochs` passes of the clipped surrogate (and the anchors) over the
-/// kept steps: those of groups with both outcomes and, with `fresh_anchor`, every step of the
+/// kept steps: those of groups whose rewards differ (both outcomes, or with
+/// [`GroupPg::contact_cost`] touches of brick 2 in some episodes only) and, with `fresh_anchor`, every step of the
 /// first `seed_groups` groups (the start-seed ones).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn update(
@@ -32,9 +33,13 @@ pub(super) fn update(
     let mut weight = Vec::new();
     let mut mixed = 0u32;
     let mut row = vec![0.0f32; d];
+    // An episode's reward: its success, less the contact cost when it touched brick 2. With no
+    // cost the rewards are the outcomes, and a group has a gradient when both outcomes occur.
+    let reward =
+        |e: &Episode| f32::from(u8::from(e.success)) - if e.touched { s.contact_cost } else { 0.0 };
     for (index, group) in episodes.chunks(reps).enumerate() {
-        let wins = group.iter().filter(|e| e.success).count();
-        let both = wins > 0 && wins < group.len();
+        let total: f32 = group.iter().map(reward).sum();
+        let both = group.iter().any(|e| reward(e) != reward(&group[0]));
         let fresh = if index < seed_groups {
             s.fresh_anchor
         } else {
@@ -44,14 +49,10 @@ pub(super) fn update(
             continue;
         }
         mixed += u32::from(both);
-        let mean = wins as f32 / group.len() as f32;
+        let mean = total / group.len() as f32;
         for e in group {
-            // A group without both outcomes is kept for its anchor only: no advantage.
-            let a = if both {
-                f32::from(u8::from(e.success)) - mean
-            } else {
-                0.0
-            };
+            // A group whose rewards are all equal is kept for its anchor only: no advantage.
+            let a = if both { reward(e) - mean } else { 0.0 };
             let w = if both { s.anchor + fresh } else { fresh };
             for (o, n) in e.obs.iter().zip(&e.noise) {
                 actor.input(o, &mut row);
@@ -80,6 +81,8 @@ pub(super) fn update(
         close_successes: 0,
         failed_groups: 0,
         failed_successes: 0,
+        touched: episodes.iter().filter(|e| e.touched).count() as u32,
+        close_touched: 0,
     };
     if samples == 0 {
         return Ok(report);

@@ -130,6 +130,8 @@ impl PgStage {
             failed_groups: 0,
             failed_starts: Vec::new(),
             failed_noise_steps: 0,
+            // Measured with `trainer pg` alone first (session 40).
+            contact_cost: 0.0,
             seed,
         }
     }
