@@ -1,11 +1,14 @@
-//! What the robot touches: its contacts with brick 2.
+//! What the robot touches, or nearly: its contacts with brick 2, and how close its fingertips come.
 //!
 //! On Stack the shipped clone fails about half the episodes in which a fingertip comes down on
 //! brick 2 before the hand has grasped brick 1, and few of the others (docs/experiments.md,
 //! session 40): the contact is the measurable precursor of most of its failures, and a fine-tune
 //! can be charged for it (`trainer pg --contact-cost`).
 
+use mujoco_rs::prelude::MjtObjBase;
+
 use super::environment::JacoEnv;
+use super::markov_demo::{KNUCKLES, TIPS};
 
 /// The world body's id: the table and the floor are its geoms.
 const WORLD_BODY: usize = 0;
@@ -36,6 +39,40 @@ impl JacoEnv {
             };
             other != WORLD_BODY && other != ids.brick1_body && other != ids.brick2_body
         })
+    }
+}
+
+impl JacoEnv {
+    /// The distance (metres) between the fingers (their proximal and distal phalanges' geoms)
+    /// and brick 2's geoms, MuJoCo's `mj_geomDistance` over every pair, 0 when they touch or
+    /// overlap, `max` when none is nearer than `max`. Where a contact is only yes or no, this
+    /// is how near the fingers pass.
+    pub fn finger_clearance_to_brick2(&mut self, max: f64) -> f64 {
+        let ids = *self.scene().ids();
+        let model = self.scene().model().clone();
+        let bodies = model.geom_bodyid();
+        let on = |g: usize, b: usize| usize::try_from(bodies[g]).is_ok_and(|x| x == b);
+        let fingers: Vec<usize> = TIPS
+            .iter()
+            .chain(KNUCKLES.iter())
+            .filter_map(|name| model.name_to_id(MjtObjBase::mjOBJ_BODY, name))
+            .collect();
+        let brick: Vec<usize> = (0..bodies.len())
+            .filter(|&g| on(g, ids.brick2_body))
+            .collect();
+        let hand: Vec<usize> = (0..bodies.len())
+            .filter(|&g| fingers.iter().any(|&b| on(g, b)))
+            .collect();
+        let data = self.data_mut();
+        let mut nearest = max;
+        for &h in &hand {
+            for &b in &brick {
+                if let Ok(d) = data.try_geom_distance(h, b, max, None) {
+                    nearest = nearest.min(d);
+                }
+            }
+        }
+        nearest.max(0.0)
     }
 }
 
@@ -98,5 +135,30 @@ mod tests {
             env.robot_touches_brick2(),
             "brick 2 on the fingertip is not touched"
         );
+        assert_eq!(env.finger_clearance_to_brick2(0.05), 0.0);
+        // Brick 2 lowered away from the fingers step by step: the clearance grows with the gap
+        // (by no more than the gap grows) and leaves 0.
+        let mut last = 0.0;
+        for k in 1..=8 {
+            let below = p[2] - crate::scene::BRICK_HEIGHT - 0.01 * f64::from(k);
+            set_free(env.data_mut(), ids.brick2_qpos, [p[0], p[1], below], 0.0);
+            env.data_mut().forward();
+            let c = env.finger_clearance_to_brick2(0.05);
+            assert!(
+                c >= last && c <= last + 0.01 + 1e-9,
+                "{k} cm: {c} after {last}"
+            );
+            last = c;
+        }
+        assert!(last > 0.0, "8 cm below, the fingers still touch brick 2");
+        // Far away: the cap.
+        set_free(
+            env.data_mut(),
+            ids.brick2_qpos,
+            [p[0] + 0.5, p[1], 0.0],
+            0.0,
+        );
+        env.data_mut().forward();
+        assert_eq!(env.finger_clearance_to_brick2(0.05), 0.05);
     }
 }

@@ -45,8 +45,10 @@ use nalgebra::{Vector2, Vector3};
 use std::f64::consts::PI;
 
 /// The finger (proximal phalanx) bodies, whose origins are the knuckles.
-const KNUCKLES: [&str; FINGER_JOINTS] = ["hand/b_finger_1", "hand/b_finger_2", "hand/b_finger_3"];
-const TIPS: [&str; FINGER_JOINTS] = [
+pub(crate) const KNUCKLES: [&str; FINGER_JOINTS] =
+    ["hand/b_finger_1", "hand/b_finger_2", "hand/b_finger_3"];
+/// The fingertip bodies.
+pub(crate) const TIPS: [&str; FINGER_JOINTS] = [
     "hand/b_finger_tip_1",
     "hand/b_finger_tip_2",
     "hand/b_finger_tip_3",

@@ -3,11 +3,13 @@
 //! quantisation (as `trainer eval` runs it); for each episode it prints one CSV row: the start
 //! index, success, the bricks' initial centre spacing, the steps with a contact between brick 2 and
 //! anything but brick 1 and the world before the grasp predicate first holds, the first such step,
-//! and brick 2's largest horizontal displacement before the grasp and over the episode. A summary
-//! by contact and by spacing follows on stderr.
+//! brick 2's largest horizontal displacement before the grasp and over the episode, and the
+//! nearest the fingers came to brick 2 before the grasp (`JacoEnv::finger_clearance_to_brick2`, capped at 5 cm).
+//! A summary by contact and by spacing follows on stderr. With `close`, the starts are drawn with
+//! the bricks' centres at most 9.5 cm apart (`JacoEnv::reset_close`).
 //!
 //! ```text
-//! cargo run --release -p dex-trainer --example brick2_contact_spike -- POLICY SEED EPISODES THREADS > rows.csv
+//! cargo run --release -p dex-trainer --example brick2_contact_spike -- POLICY SEED EPISODES THREADS [close] > rows.csv
 //! ```
 
 use anyhow::Context;
@@ -23,14 +25,16 @@ struct Row {
     first_contact: Option<u32>,
     disp_pre: f64,
     disp_all: f64,
+    clearance: f64,
     others: Vec<String>,
 }
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().skip(1).collect();
-    if a.len() != 4 {
-        anyhow::bail!("usage: brick2_contact_spike POLICY SEED EPISODES THREADS");
+    if !(4..=5).contains(&a.len()) || a.get(4).is_some_and(|c| c != "close") {
+        anyhow::bail!("usage: brick2_contact_spike POLICY SEED EPISODES THREADS [close]");
     }
+    let close = a.len() == 5;
     let file = std::fs::read(&a[0]).context("policy")?;
     let (seed, n, threads): (u64, usize, usize) = (a[1].parse()?, a[2].parse()?, a[3].parse()?);
     let aligned = dex_runtime::testkit::aligned_copy(&file);
@@ -47,7 +51,12 @@ fn main() -> anyhow::Result<()> {
             ))
         },
         |(mlp, env), i| -> anyhow::Result<Row> {
-            let mut o = env.reset(episode_seed(seed, i as u64))?;
+            let start = episode_seed(seed, i as u64);
+            let mut o = if close {
+                env.reset_close(start, 0.095)?
+            } else {
+                env.reset(start)?
+            };
             let s0 = env.reward_state();
             let start2 = s0.brick2_pos;
             let spacing = ((s0.brick1_pos[0] - start2[0]).powi(2)
@@ -60,6 +69,7 @@ fn main() -> anyhow::Result<()> {
                 first_contact: None,
                 disp_pre: 0.0,
                 disp_all: 0.0,
+                clearance: f64::INFINITY,
                 others: Vec::new(),
             };
             let mut grasped = false;
@@ -74,6 +84,7 @@ fn main() -> anyhow::Result<()> {
                 row.disp_all = row.disp_all.max(d);
                 if !grasped {
                     row.disp_pre = row.disp_pre.max(d);
+                    row.clearance = row.clearance.min(env.finger_clearance_to_brick2(0.05));
                     let model = env.scene().model();
                     let body_of = |g: i32| {
                         let b = model.geom_bodyid()[g as usize] as usize;
@@ -113,16 +124,19 @@ fn main() -> anyhow::Result<()> {
         },
         &|| {},
     )?;
-    println!("start,success,spacing,contact_steps,first_contact,disp_pre,disp_all,bodies");
+    println!(
+        "start,success,spacing,contact_steps,first_contact,disp_pre,disp_all,clearance,bodies"
+    );
     for (i, r) in rows.iter().enumerate() {
         println!(
-            "{i},{},{:.4},{},{},{:.4},{:.4},{}",
+            "{i},{},{:.4},{},{},{:.4},{:.4},{:.4},{}",
             u8::from(r.success),
             r.spacing,
             r.contact_steps,
             r.first_contact.map_or(-1, i64::from),
             r.disp_pre,
             r.disp_all,
+            r.clearance,
             r.others.join("|")
         );
     }

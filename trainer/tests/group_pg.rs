@@ -684,6 +684,13 @@ fn a_contact_cost_changes_the_run_counts_the_contacts_repeats_and_resumes_exactl
     };
     let dirs = (two.as_path(), resumed.as_path());
     assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "contact cost");
+    // With a margin, the fingers' near passes pay too: another run again.
+    let margined = GroupPg {
+        contact_margin: 0.02,
+        ..s.clone()
+    };
+    let (near, _) = stack_run_with_reports(&margined, &scene, "contact-margin");
+    assert_ne!(near, first, "the margin changed nothing");
     // A resumed run refuses another cost.
     let other = GroupPg {
         contact_cost: 0.5,

@@ -105,6 +105,10 @@ pub struct PgArgs {
     /// its success, in [0, 1] (default 0).
     #[arg(long)]
     contact_cost: Option<f32>,
+    /// With `--contact-cost`: metres within which a fingertip passing brick 2 before the grasp
+    /// pays a share of the cost, `(margin - clearance) / margin` (default 0: only a contact).
+    #[arg(long)]
+    contact_margin: Option<f32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -158,6 +162,7 @@ impl PgArgs {
             failed_starts,
             failed_noise_steps: self.failed_noise_steps.unwrap_or(d.failed_noise_steps),
             contact_cost: self.contact_cost.unwrap_or(d.contact_cost),
+            contact_margin: self.contact_margin.unwrap_or(d.contact_margin),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         })

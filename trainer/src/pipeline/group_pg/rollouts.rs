@@ -21,6 +21,9 @@ pub(super) struct Episode {
     pub(super) success: bool,
     /// Whether the robot touched brick 2 before it first grasped brick 1.
     pub(super) touched: bool,
+    /// The nearest a fingertip came to brick 2 before the grasp, metres (measured only with a
+    /// [`GroupPg::contact_margin`]; infinite otherwise).
+    pub(super) clearance: f32,
     pub(super) stall: Option<StallStart>,
 }
 
@@ -169,6 +172,7 @@ pub(super) fn episode(
     };
     let mut steps = 0u64;
     let (mut grasped, mut touched) = (false, false);
+    let mut clearance = f32::INFINITY;
     loop {
         let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
         if steps < noisy_steps {
@@ -189,6 +193,10 @@ pub(super) fn episode(
         }
         grasped |= out.predicates.grasp;
         touched = touched || (!grasped && env.robot_touches_brick2());
+        if !grasped && s.contact_margin > 0.0 {
+            clearance =
+                clearance.min(env.finger_clearance_to_brick2(f64::from(s.contact_margin)) as f32);
+        }
         o = out.observation;
         if out.done {
             let stall = seed
@@ -201,6 +209,7 @@ pub(super) fn episode(
                 steps,
                 success: out.success,
                 touched,
+                clearance,
                 stall,
             });
         }

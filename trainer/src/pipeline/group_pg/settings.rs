@@ -151,6 +151,14 @@ pub struct GroupPg {
     /// toward approaches that keep clear of brick 2, in groups whose episodes all succeed too.
     #[serde(default)]
     pub contact_cost: f32,
+    /// With `contact_cost`, the distance (metres) within which a fingertip that passes brick 2
+    /// before the grasp without touching it is charged too (0: only a contact is): the share of
+    /// the cost is `(margin - clearance) / margin`, clearance being the nearest the fingers'
+    /// geoms came to brick 2's ([`crate::env::JacoEnv::finger_clearance_to_brick2`]).
+    /// A contact is a yes or no that the noise of one group rarely changes; how near the tips
+    /// pass changes with every draw, so more groups carry the gradient away from brick 2.
+    #[serde(default)]
+    pub contact_margin: f32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -183,6 +191,7 @@ impl GroupPg {
             failed_starts: Vec::new(),
             failed_noise_steps: 0,
             contact_cost: 0.0,
+            contact_margin: 0.0,
             seed: 1,
         }
     }
@@ -251,6 +260,12 @@ impl GroupPg {
         if !(self.contact_cost.is_finite() && (0.0..=1.0).contains(&self.contact_cost)) {
             return bad("contact_cost must be in [0, 1] (1: a touch costs as much as a failure)");
         }
+        if !(self.contact_margin.is_finite() && (0.0..=0.05).contains(&self.contact_margin)) {
+            return bad("contact_margin must be in [0, 0.05] metres");
+        }
+        if self.contact_margin > 0.0 && self.contact_cost == 0.0 {
+            return bad("contact_margin widens contact_cost, which is 0");
+        }
         if self.stall_back > MAX_STALL_BACK {
             return bad("stall_back must be at most 100 steps");
         }
@@ -269,6 +284,19 @@ impl GroupPg {
         let aligned = dex_runtime::aligned::aligned_copy(&file);
         let view = crate::evaluate::decode_jaco_policy(aligned.as_bytes())?;
         Ok(Task::from(view.body().task))
+    }
+
+    /// The share (0 to 1) of `contact_cost` an episode pays: all of it when the robot touched
+    /// brick 2 before the grasp, else the part of `contact_margin` its nearest fingertip came
+    /// within.
+    pub fn contact_share(&self, touched: bool, clearance: f32) -> f32 {
+        if touched {
+            1.0
+        } else if self.contact_margin > 0.0 {
+            ((self.contact_margin - clearance) / self.contact_margin).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
     }
 
     /// Noise standard deviation of action component `j`.

@@ -92,6 +92,7 @@ fn ep(success: bool) -> Episode {
         steps: 0,
         success,
         touched: false,
+        clearance: f32::INFINITY,
         stall: None,
     }
 }
@@ -105,6 +106,7 @@ fn ep_rows(success: bool, touched: bool, rows: usize) -> Episode {
         steps: rows as u64,
         success,
         touched,
+        clearance: f32::INFINITY,
         stall: None,
     }
 }
@@ -186,6 +188,50 @@ fn a_contact_cost_gives_a_gradient_to_a_group_that_succeeds_every_time() {
     let (report, moved) = update_once(&charged, &all);
     assert_eq!((report.mixed_groups, report.samples), (0, 0), "{report:?}");
     assert!(!moved);
+    // With a margin, a fingertip that passed within it pays its share: the group's episodes all
+    // succeed and none touched, yet they differ in how near their tips came.
+    let margined = GroupPg {
+        contact_margin: 0.02,
+        ..charged.clone()
+    };
+    assert_eq!(margined.contact_share(true, 0.5), 1.0);
+    assert_eq!(margined.contact_share(false, 0.03), 0.0);
+    assert!((margined.contact_share(false, 0.015) - 0.25).abs() < 1e-6);
+    assert_eq!(
+        charged.contact_share(false, 0.0),
+        0.0,
+        "no margin: only a contact pays"
+    );
+    let near = |clearance: f32| Episode {
+        clearance,
+        ..ep_rows(true, false, 5)
+    };
+    let passes = vec![near(0.005), near(0.05), near(0.015), near(f32::INFINITY)];
+    let (report, moved) = update_once(&margined, &passes);
+    assert_eq!((report.mixed_groups, report.samples), (1, 20), "{report:?}");
+    assert!(moved);
+    let passes = vec![near(0.005), near(0.05), near(0.015), near(f32::INFINITY)];
+    let (report, _) = update_once(&charged, &passes);
+    assert_eq!(
+        report.mixed_groups, 0,
+        "without a margin the passes are all equal"
+    );
+    for (cost, margin) in [
+        (0.5f32, -0.01f32),
+        (0.5, 0.06),
+        (0.5, f32::NAN),
+        (0.0, 0.02),
+    ] {
+        let s = GroupPg {
+            contact_cost: cost,
+            contact_margin: margin,
+            ..s.clone()
+        };
+        assert!(
+            matches!(s.validate(), Err(GroupPgError::Settings(m)) if m.contains("contact_margin")),
+            "contact_margin {margin} with cost {cost} accepted"
+        );
+    }
     // Out of range: a contact may cost at most a failure.
     for bad in [-0.1f32, 1.5, f32::NAN, f32::INFINITY] {
         let s = GroupPg {

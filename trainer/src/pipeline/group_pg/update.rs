@@ -33,10 +33,12 @@ pub(super) fn update(
     let mut weight = Vec::new();
     let mut mixed = 0u32;
     let mut row = vec![0.0f32; d];
-    // An episode's reward: its success, less the contact cost when it touched brick 2. With no
+    // An episode's reward: its success, less the contact cost when it touched brick 2 (or its
+    // share when a fingertip came within the margin). With no
     // cost the rewards are the outcomes, and a group has a gradient when both outcomes occur.
-    let reward =
-        |e: &Episode| f32::from(u8::from(e.success)) - if e.touched { s.contact_cost } else { 0.0 };
+    let reward = |e: &Episode| {
+        f32::from(u8::from(e.success)) - s.contact_cost * s.contact_share(e.touched, e.clearance)
+    };
     for (index, group) in episodes.chunks(reps).enumerate() {
         let total: f32 = group.iter().map(reward).sum();
         let both = group.iter().any(|e| reward(e) != reward(&group[0]));

@@ -132,6 +132,7 @@ impl PgStage {
             failed_noise_steps: 0,
             // Measured with `trainer pg` alone first (session 40).
             contact_cost: 0.0,
+            contact_margin: 0.0,
             seed,
         }
     }
