@@ -5,10 +5,12 @@
 //! session 40): the contact is the measurable precursor of most of its failures, and a fine-tune
 //! can be charged for it (`trainer pg --contact-cost`).
 
-use mujoco_rs::prelude::MjtObjBase;
+use mujoco_rs::prelude::{MjModel, MjtObjBase};
 
 use super::environment::JacoEnv;
+use super::error::EnvError;
 use super::markov_demo::{KNUCKLES, TIPS};
+use super::scene::{SceneIds, lookup};
 
 /// The world body's id: the table and the floor are its geoms.
 const WORLD_BODY: usize = 0;
@@ -43,34 +45,62 @@ impl JacoEnv {
 }
 
 impl JacoEnv {
-    /// The distance (metres) between the fingers (their proximal and distal phalanges'
-    /// colliding geoms) and brick 2's colliding geoms, MuJoCo's `mj_geomDistance` over every pair, 0 when they touch or
-    /// overlap, `max` when none is nearer than `max`. Where a contact is only yes or no, this
-    /// is how near the fingers pass.
-    pub fn finger_clearance_to_brick2(&mut self, max: f64) -> f64 {
-        let ids = *self.scene().ids();
-        let model = self.scene().model().clone();
+    /// The name of the body geom `geom` belongs to (as in a contact's `geom` pair), if the
+    /// geom and its body exist and the body has a name.
+    pub fn body_name_of_geom(&self, geom: i32) -> Option<&str> {
+        let model = self.scene().model();
+        let body = usize::try_from(geom)
+            .ok()
+            .and_then(|g| model.geom_bodyid().get(g).copied())
+            .and_then(|b| usize::try_from(b).ok())?;
+        model.id_to_name(MjtObjBase::mjOBJ_BODY, body)
+    }
+}
+
+/// The geoms [`JacoEnv::finger_clearance_to_brick2`] measures between, found once when the
+/// scene loads: the colliding geoms of the fingers' proximal and distal phalanges, and of brick
+/// 2. Only geoms that collide (`contype | conaffinity` not 0): the visual meshes around them
+/// would read as touching.
+#[derive(Debug, Clone)]
+pub(crate) struct ClearanceGeoms {
+    fingers: Vec<usize>,
+    brick2: Vec<usize>,
+}
+
+impl ClearanceGeoms {
+    /// The lists of `model`; a finger body missing from it is an error.
+    pub(crate) fn of(model: &MjModel, ids: &SceneIds) -> Result<Self, EnvError> {
         let bodies = model.geom_bodyid();
         let (contype, conaffinity) = (model.geom_contype(), model.geom_conaffinity());
-        // Only geoms that collide: the visual meshes around them would read as touching.
         let on = |g: usize, b: usize| {
             usize::try_from(bodies[g]).is_ok_and(|x| x == b) && (contype[g] | conaffinity[g]) != 0
         };
-        let fingers: Vec<usize> = TIPS
-            .iter()
-            .chain(KNUCKLES.iter())
-            .filter_map(|name| model.name_to_id(MjtObjBase::mjOBJ_BODY, name))
-            .collect();
-        let brick: Vec<usize> = (0..bodies.len())
-            .filter(|&g| on(g, ids.brick2_body))
-            .collect();
-        let hand: Vec<usize> = (0..bodies.len())
-            .filter(|&g| fingers.iter().any(|&b| on(g, b)))
-            .collect();
-        let data = self.data_mut();
+        let mut finger_bodies = Vec::with_capacity(TIPS.len() + KNUCKLES.len());
+        for name in TIPS.iter().chain(KNUCKLES.iter()) {
+            finger_bodies.push(lookup(model, MjtObjBase::mjOBJ_BODY, "body", name)?);
+        }
+        Ok(Self {
+            fingers: (0..bodies.len())
+                .filter(|&g| finger_bodies.iter().any(|&b| on(g, b)))
+                .collect(),
+            brick2: (0..bodies.len())
+                .filter(|&g| on(g, ids.brick2_body))
+                .collect(),
+        })
+    }
+}
+
+impl JacoEnv {
+    /// The distance (metres) between the fingers (their proximal and distal phalanges'
+    /// colliding geoms) and brick 2's colliding geoms, MuJoCo's `mj_geomDistance` over every
+    /// pair, 0 when they touch or overlap, `max` when none is nearer than `max`. Where a contact
+    /// is only yes or no, this is how near the fingers pass.
+    pub fn finger_clearance_to_brick2(&mut self, max: f64) -> f64 {
+        let (scene, data) = self.scene_and_data_mut();
+        let geoms = scene.clearance_geoms();
         let mut nearest = max;
-        for &h in &hand {
-            for &b in &brick {
+        for &h in &geoms.fingers {
+            for &b in &geoms.brick2 {
                 if let Ok(d) = data.try_geom_distance(h, b, max, None) {
                     nearest = nearest.min(d);
                 }
@@ -139,6 +169,27 @@ mod tests {
             env.robot_touches_brick2(),
             "brick 2 on the fingertip is not touched"
         );
+        // Each contact of brick 2 names its bodies: brick 2 and a finger's.
+        let names: Vec<(String, String)> = env
+            .data()
+            .contact()
+            .iter()
+            .map(|c| {
+                let name = |g: i32| env.body_name_of_geom(g).unwrap_or("?").to_owned();
+                (name(c.geom[0]), name(c.geom[1]))
+            })
+            .collect();
+        assert!(
+            names
+                .iter()
+                .any(
+                    |(a, b)| (a.as_str(), b.starts_with("hand/b_finger")) == ("brick2", true)
+                        || (b.as_str(), a.starts_with("hand/b_finger")) == ("brick2", true)
+                ),
+            "{names:?}"
+        );
+        assert_eq!(env.body_name_of_geom(-1), None);
+        assert_eq!(env.body_name_of_geom(i32::MAX), None);
         assert_eq!(env.finger_clearance_to_brick2(0.05), 0.0);
         // Brick 2 lowered away from the fingers step by step: the clearance grows with the gap
         // (by no more than the gap grows, up to the distance solver's tolerance) and leaves 0.

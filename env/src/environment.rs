@@ -228,6 +228,11 @@ impl JacoEnv {
         &mut self.data
     }
 
+    /// The scene beside the simulation state, for queries that read one and write the other.
+    pub(crate) fn scene_and_data_mut(&mut self) -> (&Scene, &mut MjData<Arc<MjModel>>) {
+        (&self.scene, &mut self.data)
+    }
+
     /// Makes the posed state the first of a new episode: clock and step counter at zero, kinematics
     /// and observation brought level with the state.
     pub(crate) fn settle_new_episode(&mut self) -> Observation {

@@ -13,6 +13,7 @@ use std::sync::Arc;
 
 use mujoco_rs::prelude::*;
 
+use super::contacts::ClearanceGeoms;
 use super::error::EnvError;
 
 /// Height of the pinch site above brick 1's origin at which the demonstrator closes the fingers.
@@ -109,6 +110,7 @@ pub struct SceneIds {
 pub struct Scene {
     model: Arc<MjModel>,
     ids: SceneIds,
+    clearance: ClearanceGeoms,
 }
 
 impl Scene {
@@ -125,9 +127,11 @@ impl Scene {
             source,
         })?;
         let ids = scene_ids(&model)?;
+        let clearance = ClearanceGeoms::of(&model, &ids)?;
         Ok(Self {
             model: Arc::new(model),
             ids,
+            clearance,
         })
     }
 
@@ -139,6 +143,12 @@ impl Scene {
     /// Indices of the joints, bricks and sites the environment uses.
     pub fn ids(&self) -> &SceneIds {
         &self.ids
+    }
+
+    /// The colliding geoms of the fingers and of brick 2, for
+    /// [`crate::JacoEnv::finger_clearance_to_brick2`].
+    pub(crate) fn clearance_geoms(&self) -> &ClearanceGeoms {
+        &self.clearance
     }
 
     /// A fresh simulation state for this model (one per environment / thread).
@@ -179,7 +189,7 @@ pub fn compose_spec(assets: &AssetPaths) -> Result<MjSpec, EnvError> {
     Ok(spec)
 }
 
-fn lookup(
+pub(crate) fn lookup(
     model: &MjModel,
     kind: MjtObjBase,
     kind_name: &'static str,

@@ -85,14 +85,7 @@ fn main() -> anyhow::Result<()> {
                 if !grasped {
                     row.disp_pre = row.disp_pre.max(d);
                     row.clearance = row.clearance.min(env.finger_clearance_to_brick2(0.05));
-                    let model = env.scene().model();
-                    let body_of = |g: i32| {
-                        let b = model.geom_bodyid()[g as usize] as usize;
-                        model
-                            .id_to_name(mujoco_rs::prelude::MjtObjBase::mjOBJ_BODY, b)
-                            .unwrap_or("?")
-                            .to_owned()
-                    };
+                    let body_of = |g: i32| env.body_name_of_geom(g).unwrap_or("?").to_owned();
                     let mut touched = false;
                     for c in env.data().contact().iter() {
                         let (b0, b1) = (body_of(c.geom[0]), body_of(c.geom[1]));

@@ -126,14 +126,7 @@ fn main() -> anyhow::Result<()> {
                         .collect::<Vec<_>>()
                         .join(" ")
                 };
-                let model = env.scene().model();
-                let body_of = |g: i32| {
-                    let b = model.geom_bodyid()[g as usize] as usize;
-                    model
-                        .id_to_name(mujoco_rs::prelude::MjtObjBase::mjOBJ_BODY, b)
-                        .unwrap_or("?")
-                        .to_owned()
-                };
+                let body_of = |g: i32| env.body_name_of_geom(g).unwrap_or("?").to_owned();
                 let touching: Vec<String> = env
                     .data()
                     .contact()

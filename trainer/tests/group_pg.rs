@@ -440,37 +440,36 @@ fn the_command_line_writes_the_policy_and_refuses_bad_flags() {
     let view = dex_trainer::evaluate::decode_jaco_policy(aligned.as_bytes()).unwrap();
     assert_eq!(view.body().task, dex_policy::Task::Grasp);
 
-    let bad = Command::new(env!("CARGO_BIN_EXE_trainer"))
-        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
-        .arg(dir.join("bad"))
-        .args(["--clip", "2"])
-        .output()
-        .unwrap();
-    assert!(!bad.status.success());
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("clip must be in (0, 1)"));
-    assert!(!dir.join("bad").exists());
-    let costly = Command::new(env!("CARGO_BIN_EXE_trainer"))
-        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
-        .arg(dir.join("costly"))
-        .args(["--contact-cost", "2"])
-        .output()
-        .unwrap();
-    assert!(!costly.status.success());
-    assert!(String::from_utf8_lossy(&costly.stderr).contains("contact_cost must be in [0, 1]"));
-    assert!(!dir.join("costly").exists());
-    let lone = Command::new(env!("CARGO_BIN_EXE_trainer"))
-        .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
-        .arg(dir.join("lone"))
-        .args(["--close-spacing", "0.09"])
-        .output()
-        .unwrap();
-    assert!(!lone.status.success());
-    assert!(
-        String::from_utf8_lossy(&lone.stderr).contains("--close-groups, which is 0"),
-        "{}",
-        String::from_utf8_lossy(&lone.stderr)
-    );
-    assert!(!dir.join("lone").exists());
+    // Each bad flag is refused with its reason, before the run's folder exists.
+    for (name, flags, why) in [
+        ("bad", &["--clip", "2"][..], "clip must be in (0, 1)"),
+        (
+            "costly",
+            &["--contact-cost", "2"],
+            "contact_cost must be in [0, 1]",
+        ),
+        (
+            "lone",
+            &["--close-spacing", "0.09"],
+            "--close-groups, which is 0",
+        ),
+        (
+            "drift",
+            &["--noise-correlation", "1"],
+            "noise_correlation must be in [0, 1)",
+        ),
+    ] {
+        let refused = Command::new(env!("CARGO_BIN_EXE_trainer"))
+            .args(["pg", grasp_clone().to_str().unwrap(), "--out"])
+            .arg(dir.join(name))
+            .args(flags)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert!(!refused.status.success(), "{flags:?} accepted");
+        assert!(stderr.contains(why), "{flags:?}: {stderr}");
+        assert!(!dir.join(name).exists(), "{flags:?} left a folder");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -781,4 +780,38 @@ fn the_command_line_reads_the_failed_starts_of_the_starting_file_only() {
         assert!(!dir.join("bad").exists());
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn correlated_noise_changes_the_run_repeats_and_resumes_exactly() {
+    let scene = Scene::load().unwrap();
+    let s = GroupPg {
+        noise_correlation: 0.9,
+        ..small()
+    };
+    let (one, two, resumed) = (tmp("drift-one"), tmp("drift-two"), tmp("drift-resumed"));
+    let (first, _) = run_keeping_first_checkpoint(&s, &scene, Task::Grasp, &one, 0, &resumed);
+    let white = run(&small(), &scene, Task::Grasp, &two, 1, 0, &mut |_| {}).unwrap();
+    assert_ne!(first, white, "the correlation changed nothing");
+    let _ = std::fs::remove_dir_all(&two);
+    let on_two = run(&s, &scene, Task::Grasp, &two, 2, 0, &mut |_| {}).unwrap();
+    assert_eq!(
+        first, on_two,
+        "correlated noise depends on the thread count"
+    );
+    let again = run(&s, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {}).unwrap();
+    assert_eq!(first, again, "the resumed run differs");
+    // A resumed run refuses another correlation.
+    let other = GroupPg {
+        noise_correlation: 0.5,
+        ..s.clone()
+    };
+    let refused = run(&other, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {});
+    assert!(
+        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
+        "{refused:?}"
+    );
+    for d in [one, two, resumed] {
+        let _ = std::fs::remove_dir_all(d);
+    }
 }

@@ -89,19 +89,31 @@ impl ExplorationNoise {
         self.cfg.std * self.cfg.scale.get(j).copied().unwrap_or(1.0)
     }
 
-    /// Writes `clip(mean + noise, -1, 1)` into `action`, advancing the process one step.
-    pub fn perturb(&mut self, rng: &mut Rng, mean: &[f32], action: &mut [f32]) {
+    /// Writes the next noise vector (`std * scale_j * x_j`, before any clipping) into `noise`,
+    /// advancing the process one step. White noise draws `N(0, (std * scale_j)^2)` per
+    /// component, the plain Gaussian stream.
+    pub fn draw(&mut self, rng: &mut Rng, noise: &mut [f32]) {
         let rho = self.cfg.correlation;
         if rho == 0.0 {
-            for (j, (a, &m)) in action.iter_mut().zip(mean).enumerate() {
-                *a = rng.normal(m, self.scale(j)).clamp(-1.0, 1.0);
+            for (j, n) in noise.iter_mut().enumerate() {
+                *n = rng.normal(0.0, self.scale(j));
             }
             return;
         }
         let innovation = (1.0 - rho * rho).sqrt();
-        for j in 0..action.len().min(mean.len()).min(self.x.len()) {
+        for j in 0..noise.len().min(self.x.len()) {
             self.x[j] = rho * self.x[j] + innovation * rng.normal(0.0, 1.0);
-            action[j] = (mean[j] + self.scale(j) * self.x[j]).clamp(-1.0, 1.0);
+            noise[j] = self.scale(j) * self.x[j];
+        }
+    }
+
+    /// Writes `clip(mean + noise, -1, 1)` into `action`, advancing the process one step
+    /// ([`ExplorationNoise::draw`]).
+    pub fn perturb(&mut self, rng: &mut Rng, mean: &[f32], action: &mut [f32]) {
+        let n = action.len().min(mean.len());
+        self.draw(rng, &mut action[..n]);
+        for (a, &m) in action[..n].iter_mut().zip(mean) {
+            *a = (m + *a).clamp(-1.0, 1.0);
         }
     }
 }

@@ -109,6 +109,10 @@ pub struct PgArgs {
     /// pays a share of the cost, `(margin - clearance) / margin` (default 0: only a contact).
     #[arg(long)]
     contact_margin: Option<f32>,
+    /// Correlation of each joint's exploration noise from one step to the next, in [0, 1)
+    /// (default 0: white noise): an AR(1) drift of the same spread, which moves the approach.
+    #[arg(long)]
+    noise_correlation: Option<f32>,
     /// Seed of the starts, the noise and the minibatch order.
     #[arg(long)]
     seed: Option<u64>,
@@ -163,6 +167,7 @@ impl PgArgs {
             failed_noise_steps: self.failed_noise_steps.unwrap_or(d.failed_noise_steps),
             contact_cost: self.contact_cost.unwrap_or(d.contact_cost),
             contact_margin: self.contact_margin.unwrap_or(d.contact_margin),
+            noise_correlation: self.noise_correlation.unwrap_or(d.noise_correlation),
             seed: self.seed.unwrap_or(d.seed),
             ..d
         })

@@ -173,10 +173,12 @@ pub(super) fn episode(
     let mut steps = 0u64;
     let (mut grasped, mut touched) = (false, false);
     let mut clearance = f32::INFINITY;
+    let mut drift = s.exploration_noise(rng);
     loop {
         let mut a = physical_to_env_action(&controller_command(mlp, &o, true, None)?);
         if steps < noisy_steps {
-            let e: [f32; ACT_DIM] = std::array::from_fn(|j| rng.normal(0.0, s.sigma(j)));
+            let mut e = [0.0f32; ACT_DIM];
+            drift.draw(rng, &mut e);
             for (x, n) in a.iter_mut().zip(&e) {
                 *x = (*x + n).clamp(-1.0, 1.0);
             }

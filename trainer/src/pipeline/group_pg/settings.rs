@@ -2,12 +2,14 @@
 
 use std::path::PathBuf;
 
+use dex_runtime::interface::ACT_DIM;
 use dex_runtime::kinematics::ARM_JOINTS;
 use serde::{Deserialize, Serialize};
 
 use crate::env::Task;
 use crate::env::seeds::{DEMO_SEED, episode_seed};
 use crate::evaluate::EvalError;
+use crate::learn::noise::{ExplorationNoise, NoiseConfig};
 use crate::learn::{LearnError, Rng};
 use crate::pipeline::file_actor::FileActorError;
 
@@ -159,6 +161,18 @@ pub struct GroupPg {
     /// pass changes with every draw, so more groups carry the gradient away from brick 2.
     #[serde(default)]
     pub contact_margin: f32,
+    /// Correlation from one step's exploration noise to the next, in [0, 1) (0: white noise, as
+    /// before session 41). Each joint's noise is a first-order autoregression
+    /// `z_t = rho z_(t-1) + sqrt(1 - rho^2) w_t` in units of its `arm_noise` or `finger_noise`,
+    /// so every step keeps that spread while the hand's path drifts: white noise of a tenth of
+    /// the command averages out over the approach, and whether the fingers meet brick 2 on the
+    /// way down rarely changes within a group (session 40); a correlated drift moves the
+    /// approach itself. The update is unchanged: it moves each kept step's action toward or away
+    /// from the noisy action that step took, weighted by the group advantage (per step, as if
+    /// the noise were white; an advantage-weighted surrogate, not the exact likelihood ratio of
+    /// the correlated draw).
+    #[serde(default)]
+    pub noise_correlation: f32,
     /// Seed of the starts, the noise and the minibatch order.
     pub seed: u64,
 }
@@ -192,6 +206,7 @@ impl GroupPg {
             failed_noise_steps: 0,
             contact_cost: 0.0,
             contact_margin: 0.0,
+            noise_correlation: 0.0,
             seed: 1,
         }
     }
@@ -266,6 +281,9 @@ impl GroupPg {
         if self.contact_margin > 0.0 && self.contact_cost == 0.0 {
             return bad("contact_margin widens contact_cost, which is 0");
         }
+        if !(self.noise_correlation.is_finite() && (0.0..1.0).contains(&self.noise_correlation)) {
+            return bad("noise_correlation must be in [0, 1)");
+        }
         if self.stall_back > MAX_STALL_BACK {
             return bad("stall_back must be at most 100 steps");
         }
@@ -306,6 +324,20 @@ impl GroupPg {
         } else {
             self.finger_noise
         }
+    }
+
+    /// An episode's exploration noise: `arm_noise` on the arm joints, `finger_noise` on the
+    /// fingers, white or with `noise_correlation`, its state drawn from the stationary spread
+    /// (white noise draws nothing here, so its stream is the plain Gaussian one).
+    pub(super) fn exploration_noise(&self, rng: &mut Rng) -> ExplorationNoise {
+        let cfg = NoiseConfig {
+            std: 1.0,
+            correlation: self.noise_correlation,
+            scale: (0..ACT_DIM).map(|j| self.sigma(j)).collect(),
+        };
+        let mut noise = ExplorationNoise::new(&cfg, ACT_DIM);
+        noise.reset(rng);
+        noise
     }
 
     /// Fresh start seed of group `g` of iteration `i`.

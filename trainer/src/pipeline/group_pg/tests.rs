@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use super::rollouts::{Episode, HARD_STARTS};
 use super::*;
+use crate::learn::Rng;
 use crate::learn::adam::{AdamConfig, AdamLocal, AdamShared};
+use dex_runtime::interface::ACT_DIM;
 
 #[test]
 fn a_report_line_counts_the_stall_episodes_by_the_replicates() {
@@ -318,4 +320,60 @@ fn failed_start_groups_pick_from_their_list_without_repeats_and_need_one() {
     };
     let why = stray.validate().unwrap_err().to_string();
     assert!(why.contains("failed_noise_steps"), "{why}");
+}
+
+#[test]
+fn the_episode_noise_is_the_white_stream_or_a_drift_of_the_same_spread() {
+    let white = GroupPg::new("x.dxpl".into());
+    // White: exactly the plain Gaussian draws, joint by joint, so runs without a correlation
+    // are those of before it existed.
+    let (mut a, mut b) = (Rng::derive(7, 3), Rng::derive(7, 3));
+    let mut noise = white.exploration_noise(&mut a);
+    for _ in 0..20 {
+        let mut e = [0.0f32; ACT_DIM];
+        noise.draw(&mut a, &mut e);
+        for (j, x) in e.iter().enumerate() {
+            assert_eq!(*x, b.normal(0.0, white.sigma(j)));
+        }
+    }
+    // Correlated: each joint keeps its spread and has the lag-one correlation.
+    let s = GroupPg {
+        noise_correlation: 0.9,
+        ..white.clone()
+    };
+    let steps = 20_000;
+    let mut rng = Rng::derive(7, 4);
+    let mut noise = s.exploration_noise(&mut rng);
+    let mut rows = Vec::with_capacity(steps);
+    for _ in 0..steps {
+        let mut e = [0.0f32; ACT_DIM];
+        noise.draw(&mut rng, &mut e);
+        rows.push(e);
+    }
+    for j in [0, ACT_DIM - 1] {
+        let x: Vec<f64> = rows.iter().map(|r| f64::from(r[j])).collect();
+        let var = x.iter().map(|v| v * v).sum::<f64>() / steps as f64;
+        let cov = x.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / (steps - 1) as f64;
+        let sd = f64::from(s.sigma(j));
+        assert!(
+            (var.sqrt() - sd).abs() < 0.1 * sd,
+            "joint {j}: spread {}",
+            var.sqrt()
+        );
+        assert!(
+            (cov / var - 0.9).abs() < 0.03,
+            "joint {j}: lag one {}",
+            cov / var
+        );
+    }
+    for bad in [-0.1f32, 1.0, f32::NAN] {
+        let s = GroupPg {
+            noise_correlation: bad,
+            ..white.clone()
+        };
+        assert!(
+            matches!(s.validate(), Err(GroupPgError::Settings(m)) if m.contains("noise_correlation")),
+            "noise_correlation {bad} accepted"
+        );
+    }
 }

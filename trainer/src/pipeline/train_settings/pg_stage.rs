@@ -133,6 +133,8 @@ impl PgStage {
             // Measured with `trainer pg` alone first (session 40).
             contact_cost: 0.0,
             contact_margin: 0.0,
+            // Measured with `trainer pg` alone first (session 41).
+            noise_correlation: 0.0,
             seed,
         }
     }
