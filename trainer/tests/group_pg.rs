@@ -473,6 +473,16 @@ fn the_command_line_writes_the_policy_and_refuses_bad_flags() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Checks that a run of `other` refuses the checkpoint left in `resumed` by a run of other
+/// settings.
+fn assert_resume_refuses(other: &GroupPg, scene: &Scene, task: Task, resumed: &std::path::Path) {
+    let refused = run(other, scene, task, resumed, 1, 0, &mut |_| {});
+    assert!(
+        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
+        "{refused:?}"
+    );
+}
+
 /// Checks that `first`, the file of `s` run on one thread in a fresh folder, differs from the run
 /// `without` the groups named by `what` (in `two`), is the file of `s` on two threads (in `two`
 /// again) and of `s` resumed from the checkpoint kept in `resumed`.
@@ -480,16 +490,17 @@ fn assert_changes_repeats_and_resumes(
     s: &GroupPg,
     without: &GroupPg,
     scene: &Scene,
+    task: Task,
     first: &[u8],
     (two, resumed): (&std::path::Path, &std::path::Path),
     what: &str,
 ) {
-    let plain = run(without, scene, Task::Stack, two, 1, 0, &mut |_| {}).unwrap();
+    let plain = run(without, scene, task, two, 1, 0, &mut |_| {}).unwrap();
     assert_ne!(first, plain, "the {what} changed nothing");
     let _ = std::fs::remove_dir_all(two);
-    let on_two = run(s, scene, Task::Stack, two, 2, 0, &mut |_| {}).unwrap();
+    let on_two = run(s, scene, task, two, 2, 0, &mut |_| {}).unwrap();
     assert_eq!(first, on_two, "the {what} depend on the thread count");
-    let again = run(s, scene, Task::Stack, resumed, 1, 0, &mut |_| {}).unwrap();
+    let again = run(s, scene, task, resumed, 1, 0, &mut |_| {}).unwrap();
     assert_eq!(first, again, "the resumed run differs");
 }
 
@@ -516,7 +527,15 @@ fn close_groups_run_from_close_starts_and_repeat_and_resume_exactly() {
         ..s.clone()
     };
     let dirs = (two.as_path(), resumed.as_path());
-    assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "close groups");
+    assert_changes_repeats_and_resumes(
+        &s,
+        &without,
+        &scene,
+        Task::Stack,
+        &first,
+        dirs,
+        "close groups",
+    );
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }
@@ -627,17 +646,21 @@ fn failed_start_groups_run_their_window_repeat_and_resume_exactly() {
         ..s.clone()
     };
     let dirs = (two.as_path(), resumed.as_path());
-    assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "failed-start groups");
+    assert_changes_repeats_and_resumes(
+        &s,
+        &without,
+        &scene,
+        Task::Stack,
+        &first,
+        dirs,
+        "failed-start groups",
+    );
     // A resumed run refuses another list.
     let other = GroupPg {
         failed_starts: vec![1, 2, 3],
         ..s.clone()
     };
-    let refused = run(&other, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {});
-    assert!(
-        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
-        "{refused:?}"
-    );
+    assert_resume_refuses(&other, &scene, Task::Stack, &resumed);
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }
@@ -682,7 +705,15 @@ fn a_contact_cost_changes_the_run_counts_the_contacts_repeats_and_resumes_exactl
         ..s.clone()
     };
     let dirs = (two.as_path(), resumed.as_path());
-    assert_changes_repeats_and_resumes(&s, &without, &scene, &first, dirs, "contact cost");
+    assert_changes_repeats_and_resumes(
+        &s,
+        &without,
+        &scene,
+        Task::Stack,
+        &first,
+        dirs,
+        "contact cost",
+    );
     // With a margin, the fingers' near passes pay too: another run again.
     let margined = GroupPg {
         contact_margin: 0.02,
@@ -695,11 +726,7 @@ fn a_contact_cost_changes_the_run_counts_the_contacts_repeats_and_resumes_exactl
         contact_cost: 0.5,
         ..s.clone()
     };
-    let refused = run(&other, &scene, Task::Stack, &resumed, 1, 0, &mut |_| {});
-    assert!(
-        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
-        "{refused:?}"
-    );
+    assert_resume_refuses(&other, &scene, Task::Stack, &resumed);
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }
@@ -791,26 +818,22 @@ fn correlated_noise_changes_the_run_repeats_and_resumes_exactly() {
     };
     let (one, two, resumed) = (tmp("drift-one"), tmp("drift-two"), tmp("drift-resumed"));
     let (first, _) = run_keeping_first_checkpoint(&s, &scene, Task::Grasp, &one, 0, &resumed);
-    let white = run(&small(), &scene, Task::Grasp, &two, 1, 0, &mut |_| {}).unwrap();
-    assert_ne!(first, white, "the correlation changed nothing");
-    let _ = std::fs::remove_dir_all(&two);
-    let on_two = run(&s, &scene, Task::Grasp, &two, 2, 0, &mut |_| {}).unwrap();
-    assert_eq!(
-        first, on_two,
-        "correlated noise depends on the thread count"
+    let dirs = (two.as_path(), resumed.as_path());
+    assert_changes_repeats_and_resumes(
+        &s,
+        &small(),
+        &scene,
+        Task::Grasp,
+        &first,
+        dirs,
+        "correlation",
     );
-    let again = run(&s, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {}).unwrap();
-    assert_eq!(first, again, "the resumed run differs");
     // A resumed run refuses another correlation.
     let other = GroupPg {
         noise_correlation: 0.5,
         ..s.clone()
     };
-    let refused = run(&other, &scene, Task::Grasp, &resumed, 1, 0, &mut |_| {});
-    assert!(
-        matches!(refused, Err(GroupPgError::Checkpoint { .. })),
-        "{refused:?}"
-    );
+    assert_resume_refuses(&other, &scene, Task::Grasp, &resumed);
     for d in [one, two, resumed] {
         let _ = std::fs::remove_dir_all(d);
     }
