@@ -30,6 +30,7 @@ pub mod kinematics;
 pub mod markov_demo;
 pub mod observation;
 pub mod paired;
+pub mod paired_power;
 pub mod parallel;
 pub mod random_start;
 pub mod rewards;

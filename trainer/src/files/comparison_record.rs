@@ -295,6 +295,50 @@ impl ComparisonRecord {
 /// that no start is in two chunks; 10 million starts are some 500 CPU-hours of episodes).
 pub const MAX_POOLED_STARTS: u32 = 10_000_000;
 
+/// What every comparison record holds, plain (`trainer compare --json`) or pooled (`trainer pool
+/// --json`): enough to plan the next test from it (`trainer power`).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+pub struct ComparisonSummary {
+    /// The task.
+    pub task: String,
+    /// Starts, the same for every entry.
+    pub episodes: u32,
+    /// Every entry's successes.
+    pub entries: Vec<ComparedEntry>,
+    /// Every pair of entries.
+    pub pairs: Vec<ComparedPair>,
+    /// Wall-clock seconds the comparison (or its chunks, summed) took.
+    pub wall_s: f64,
+}
+
+impl ComparisonSummary {
+    /// Reads a plain or pooled record; its pairs' counts must fit its starts.
+    pub fn read(path: &Path) -> Result<Self, ComparisonError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ComparisonError::Read {
+            path: name.clone(),
+            source,
+        })?;
+        let s: Self = serde_json::from_str(&text).map_err(|source| ComparisonError::Parse {
+            path: name.clone(),
+            source,
+        })?;
+        for p in &s.pairs {
+            let d = &p.paired;
+            if d.episodes != s.episodes || d.only_a.saturating_add(d.only_b) > d.episodes {
+                return Err(ComparisonError::Inconsistent {
+                    record: name,
+                    what: format!(
+                        "pair {} vs {}: {} and {} discordant starts of {} (the record has {})",
+                        p.a, p.b, d.only_a, d.only_b, d.episodes, s.episodes
+                    ),
+                });
+            }
+        }
+        Ok(s)
+    }
+}
+
 /// One chunk of a pooled comparison.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PooledChunk {

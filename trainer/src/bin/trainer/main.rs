@@ -22,6 +22,7 @@ mod figure;
 mod imitate;
 mod pg;
 mod pool;
+mod power;
 mod soup;
 mod train;
 
@@ -57,6 +58,9 @@ pub(crate) enum Command {
     /// `trainer compare` records of disjoint starts pooled into one comparison (a long test run
     /// in chunks).
     Pool(pool::PoolArgs),
+    /// How many paired starts a test needs: the power of the exact McNemar test at a comparison
+    /// record's discordant rates.
+    Power(power::PowerArgs),
     /// Plot a run folder's learning curves (PNG and SVG).
     Plot {
         /// Run folder (holds seed-*/eval.jsonl).
@@ -433,6 +437,7 @@ fn main() -> anyhow::Result<()> {
         Command::Eval(args) => train::eval(&args),
         Command::Compare(args) => compare::compare(&args),
         Command::Pool(args) => pool::pool(&args),
+        Command::Power(args) => power::power(&args),
         Command::Demos(args) => demos::demos(&args),
         Command::Clone(args) => demos::clone(&args),
         Command::Imitate(args) => imitate::imitate(&args),
