@@ -343,14 +343,7 @@ mod tests {
                 Err(PowerError::Rates { .. })
             ));
         }
-        let none = Paired {
-            episodes: 0,
-            a_successes: 0,
-            b_successes: 0,
-            only_a: 0,
-            only_b: 0,
-            p_value: 1.0,
-        };
+        let none = Paired::of(&[], &[]);
         assert_eq!(plan(&none, 0.01, 0.8, 1000), Err(PowerError::NoStarts));
         // No candidate-only start: no power at any size.
         let nothing = DiscordantRates::new(0.0, 0.01).unwrap();

@@ -186,12 +186,7 @@ impl ComparisonRecord {
 
     /// Reads a record written by `trainer compare --json`.
     pub fn read(path: &Path) -> Result<Self, ComparisonError> {
-        let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ComparisonError::Read {
-            path: name.clone(),
-            source,
-        })?;
-        serde_json::from_str(&text).map_err(|source| ComparisonError::Parse { path: name, source })
+        read_record(path)
     }
 
     /// The record of `outcomes`: per entry its name, its file's hash (if it is one file) and its
@@ -295,6 +290,16 @@ impl ComparisonRecord {
 /// that no start is in two chunks; 10 million starts are some 500 CPU-hours of episodes).
 pub const MAX_POOLED_STARTS: u32 = 10_000_000;
 
+/// A JSON record of type `T` from `path`, the path named in either error.
+fn read_record<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, ComparisonError> {
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ComparisonError::Read {
+        path: name.clone(),
+        source,
+    })?;
+    serde_json::from_str(&text).map_err(|source| ComparisonError::Parse { path: name, source })
+}
+
 /// What every comparison record holds, plain (`trainer compare --json`) or pooled (`trainer pool
 /// --json`): enough to plan the next test from it (`trainer power`).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -315,14 +320,7 @@ impl ComparisonSummary {
     /// Reads a plain or pooled record; its pairs' counts must fit its starts.
     pub fn read(path: &Path) -> Result<Self, ComparisonError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ComparisonError::Read {
-            path: name.clone(),
-            source,
-        })?;
-        let s: Self = serde_json::from_str(&text).map_err(|source| ComparisonError::Parse {
-            path: name.clone(),
-            source,
-        })?;
+        let s: Self = read_record(path)?;
         for p in &s.pairs {
             let d = &p.paired;
             if d.episodes != s.episodes || d.only_a.saturating_add(d.only_b) > d.episodes {
