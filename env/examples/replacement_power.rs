@@ -9,6 +9,7 @@
 //! ```
 
 use dex_env::paired::mcnemar_exact;
+use statrs::distribution::{Binomial, Discrete};
 
 fn main() {
     let arg = |i: usize, d: f64| {
@@ -57,16 +58,10 @@ fn main() {
     }
 }
 
-/// The probabilities of 0..=n successes of Binomial(n, p).
+/// The probabilities of 0..=n successes of Binomial(n, p) (statrs' pmf).
 fn binom(n: u32, p: f64) -> Vec<f64> {
-    let mut out = Vec::with_capacity(n as usize + 1);
-    let (lp, lq) = (p.ln(), (1.0 - p).ln());
-    let mut ln_c = 0.0f64;
-    for k in 0..=n {
-        if k > 0 {
-            ln_c += f64::from(n - k + 1).ln() - f64::from(k).ln();
-        }
-        out.push((ln_c + f64::from(k) * lp + f64::from(n - k) * lq).exp());
+    match Binomial::new(p, u64::from(n)) {
+        Ok(b) => (0..=u64::from(n)).map(|k| b.pmf(k)).collect(),
+        Err(_) => vec![0.0; n as usize + 1],
     }
-    out
 }

@@ -3,6 +3,8 @@
 //! come from [`crate::evaluate::episode_outcomes`], whose episode `i` starts from the same seed for
 //! every policy file.
 
+use statrs::distribution::{Binomial, DiscreteCDF};
+
 /// The comparison of policy A with policy B on the same starts.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Paired {
@@ -46,23 +48,14 @@ impl Paired {
 }
 
 /// The exact two-sided McNemar p-value of `b` and `c` discordant pairs: `min(1, 2 P(X <= min(b,
-/// c)))` for `X ~ Binomial(b + c, 1/2)`; 1 when there is none. The binomial terms are summed from
-/// their logarithms, so any count is fine (no statistics crate of the workspace has this test;
-/// it is a dozen lines).
+/// c)))` for `X ~ Binomial(b + c, 1/2)`; 1 when there is none. The tail comes from statrs'
+/// binomial CDF (the regularised incomplete beta function), so any count costs the same.
 pub fn mcnemar_exact(b: u32, c: u32) -> f64 {
-    let n = b + c;
-    if n == 0 {
-        return 1.0;
+    let n = u64::from(b) + u64::from(c);
+    match Binomial::new(0.5, n) {
+        Ok(half) if n > 0 => (2.0 * half.cdf(u64::from(b.min(c)))).min(1.0),
+        _ => 1.0,
     }
-    let k_max = b.min(c);
-    // ln C(n, 0) / 2^n, then C(n, k) = C(n, k - 1) (n - k + 1) / k.
-    let mut ln_term = -f64::from(n) * std::f64::consts::LN_2;
-    let mut tail = ln_term.exp();
-    for k in 1..=k_max {
-        ln_term += f64::from(n - k + 1).ln() - f64::from(k).ln();
-        tail += ln_term.exp();
-    }
-    (2.0 * tail).min(1.0)
 }
 
 #[cfg(test)]

@@ -15,7 +15,7 @@
 
 use statrs::distribution::{Binomial, Discrete, DiscreteCDF};
 
-use crate::paired::Paired;
+use crate::paired::{Paired, mcnemar_exact};
 
 /// Why a power or a plan cannot be computed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -89,11 +89,10 @@ pub fn check_plan_settings(alpha: f64, wanted: f64) -> Result<(), PowerError> {
 }
 
 /// Whether `x` of `d` discordant starts for the candidate reject at `alpha`: `x > d / 2` and the
-/// exact two-sided p-value `2 P(Bin(d, 1/2) <= d - x)` is below `alpha` (the p-value of
-/// [`crate::paired::mcnemar_exact`], from the regularised incomplete beta function so that counts
-/// in the tens of thousands cost no more than small ones).
-fn rejects(half: &Binomial, d: u64, x: u64, alpha: f64) -> bool {
-    2 * x > d && 2.0 * half.cdf(d - x) < alpha
+/// test's p-value ([`mcnemar_exact`]) is below `alpha`.
+fn rejects(d: u64, x: u64, alpha: f64) -> bool {
+    let (x, rest) = (x as u32, (d - x) as u32);
+    x > rest && mcnemar_exact(x, rest) < alpha
 }
 
 /// The probability that an exact McNemar test of `starts` paired starts rejects at level `alpha`
@@ -125,9 +124,8 @@ pub fn power(starts: u64, rates: DiscordantRates, alpha: f64) -> Result<f64, Pow
         if p_d == 0.0 || d == 0 {
             continue;
         }
-        let half = Binomial::new(0.5, d).map_err(|_| PowerError::NoStarts)?;
         critical = critical.max(d / 2 + 1);
-        while critical <= d && !rejects(&half, d, critical, alpha) {
+        while critical <= d && !rejects(d, critical, alpha) {
             critical += 1;
         }
         if critical > d {
@@ -221,7 +219,6 @@ pub fn plan(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::paired::mcnemar_exact;
 
     /// The power by brute force: every (only the candidate, only the base) split of `n` starts,
     /// weighted by its trinomial probability, through the test itself.
